@@ -1,0 +1,123 @@
+//! Images on disk: 16-bit depth PNG in millimetres (TUM / ScanNet convention, 0 = no measurement),
+//! u16 instance maps (0 = background), 8-bit masks and RGB.
+
+use std::io::Cursor;
+use std::path::Path;
+
+use deocc_geometry::DepthMap;
+use image::{ImageBuffer, ImageFormat, Luma, Rgb, RgbImage};
+
+use crate::atomic::write_bytes_atomic;
+use crate::error::{IoError, IoErrorKind, Result};
+
+fn open_image(path: &Path) -> Result<image::DynamicImage> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::new(path, e))?;
+    image::load_from_memory(&bytes).map_err(|e| IoError::new(path, IoErrorKind::Image(e.to_string())))
+}
+
+fn encode_png<P, C>(path: &Path, img: &ImageBuffer<P, C>) -> Result<()>
+where
+    P: image::Pixel + image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    let mut bytes = Vec::new();
+    img.write_to(&mut Cursor::new(&mut bytes), ImageFormat::Png)
+        .map_err(|e| IoError::new(path, IoErrorKind::Image(e.to_string())))?;
+    write_bytes_atomic(path, &bytes)
+}
+
+fn read_u16_png(path: &Path, what: &str) -> Result<(u32, u32, Vec<u16>)> {
+    match open_image(path)? {
+        image::DynamicImage::ImageLuma16(img) => Ok((img.width(), img.height(), img.into_raw())),
+        other => Err(IoError::invalid(
+            path,
+            format!("expected a 16-bit single-channel PNG ({what}), found {:?}", other.color()),
+        )),
+    }
+}
+
+/// Reads a 16-bit depth PNG in millimetres into metres.
+pub fn read_depth_png(path: &Path) -> Result<DepthMap> {
+    let (w, h, mm) = read_u16_png(path, "depth in millimetres")?;
+    DepthMap::new(w, h, mm.iter().map(|&v| v as f32 / 1000.0).collect()).map_err(|e| IoError::new(path, e))
+}
+
+/// Writes depth in metres as a 16-bit PNG in millimetres. Depth beyond 65.535 m cannot be stored
+/// and is written as 0 (no measurement).
+pub fn write_depth_png(path: &Path, depth: &DepthMap) -> Result<()> {
+    let mm: Vec<u16> = depth
+        .data()
+        .iter()
+        .map(|&d| {
+            let v = (d * 1000.0).round();
+            if v > 0.0 && v <= 65535.0 {
+                v as u16
+            } else {
+                0
+            }
+        })
+        .collect();
+    let img = ImageBuffer::<Luma<u16>, _>::from_raw(depth.width(), depth.height(), mm)
+        .ok_or_else(|| IoError::invalid(path, "depth buffer size does not match its dimensions"))?;
+    encode_png(path, &img)
+}
+
+/// An instance map: one u16 id per pixel, 0 = background.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InstanceMap {
+    pub width: u32,
+    pub height: u32,
+    pub ids: Vec<u16>,
+}
+
+impl InstanceMap {
+    pub fn get(&self, u: u32, v: u32) -> u16 {
+        self.ids[v as usize * self.width as usize + u as usize]
+    }
+}
+
+/// Reads a u16 instance map PNG. 8-bit single-channel PNGs are accepted too (ids up to 255).
+pub fn read_instance_png(path: &Path) -> Result<InstanceMap> {
+    let (width, height, ids) = match open_image(path)? {
+        image::DynamicImage::ImageLuma16(img) => (img.width(), img.height(), img.into_raw()),
+        image::DynamicImage::ImageLuma8(img) => {
+            (img.width(), img.height(), img.into_raw().into_iter().map(u16::from).collect())
+        }
+        other => {
+            return Err(IoError::invalid(
+                path,
+                format!("expected a single-channel 8- or 16-bit instance map, found {:?}", other.color()),
+            ))
+        }
+    };
+    Ok(InstanceMap { width, height, ids })
+}
+
+pub fn write_instance_png(path: &Path, map: &InstanceMap) -> Result<()> {
+    let img = ImageBuffer::<Luma<u16>, _>::from_raw(map.width, map.height, map.ids.clone())
+        .ok_or_else(|| IoError::invalid(path, "instance buffer size does not match its dimensions"))?;
+    encode_png(path, &img)
+}
+
+/// Writes a binary mask (true = 255) as an 8-bit PNG.
+pub fn write_mask_png(path: &Path, width: u32, height: u32, mask: &[bool]) -> Result<()> {
+    let px: Vec<u8> = mask.iter().map(|&m| if m { 255 } else { 0 }).collect();
+    let img = ImageBuffer::<Luma<u8>, _>::from_raw(width, height, px)
+        .ok_or_else(|| IoError::invalid(path, "mask size does not match its dimensions"))?;
+    encode_png(path, &img)
+}
+
+/// Reads a mask PNG: any non-zero pixel of the first channel is inside.
+pub fn read_mask_png(path: &Path) -> Result<(u32, u32, Vec<bool>)> {
+    let img = open_image(path)?.to_luma8();
+    Ok((img.width(), img.height(), img.into_raw().into_iter().map(|v| v > 0).collect()))
+}
+
+pub fn read_rgb_png(path: &Path) -> Result<RgbImage> {
+    Ok(open_image(path)?.to_rgb8())
+}
+
+pub fn write_rgb_png(path: &Path, img: &RgbImage) -> Result<()> {
+    encode_png::<Rgb<u8>, _>(path, img)
+}

@@ -1,0 +1,21 @@
+//! # deocc-io
+//!
+//! File formats of deocc. Every function takes a path and every error names it
+//! ([`IoError`] carries the path and what was wrong). Writers are atomic: a file is written to a
+//! temporary name and renamed into place, so a failure never leaves a half-written file.
+//!
+//! - [`ply`]: point clouds and meshes (ASCII, binary little/big-endian) with colour, normals,
+//!   instance id and generated flag;
+//! - [`images`]: 16-bit depth PNG in millimetres, u16 instance maps, masks, RGB;
+//! - [`cameras`]: intrinsics and `world_from_camera` poses as JSON;
+//! - [`mesh`]: OBJ / STL / PLY meshes.
+
+pub mod atomic;
+pub mod cameras;
+pub mod error;
+pub mod images;
+pub mod mesh;
+pub mod ply;
+
+pub use error::{IoError, IoErrorKind, Result};
+pub use ply::{read_point_cloud, write_point_cloud, PlyEncoding};

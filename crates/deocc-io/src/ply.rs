@@ -1,0 +1,506 @@
+//! PLY point clouds and triangle meshes, ASCII and binary (little- and big-endian).
+//!
+//! A small reader/writer of our own: the `ply-rs` crate is unmaintained, and our needs are narrow
+//! (one vertex element with scalar properties, optionally a face element with index lists), so a
+//! focused implementation is shorter than adapting a general one and reads 1M binary points in tens
+//! of milliseconds. Any unknown element or property is parsed and skipped, so files from Open3D,
+//! MeshLab, CloudCompare or Blender load.
+//!
+//! Written clouds carry `x y z` (float), `nx ny nz` (float), `red green blue` (uchar), `instance`
+//! (uint) and `generated` (uchar), each only when the cloud has that attribute.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::Path;
+
+use deocc_geometry::PointCloud;
+use nalgebra::{Point3, Vector3};
+
+use crate::atomic::write_atomic;
+use crate::error::{IoError, IoErrorKind, Result};
+
+/// On-disk encoding of a PLY body.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlyEncoding {
+    Ascii,
+    BinaryLittleEndian,
+    BinaryBigEndian,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "char" | "int8" => Self::I8,
+            "uchar" | "uint8" => Self::U8,
+            "short" | "int16" => Self::I16,
+            "ushort" | "uint16" => Self::U16,
+            "int" | "int32" => Self::I32,
+            "uint" | "uint32" => Self::U32,
+            "float" | "float32" => Self::F32,
+            "double" | "float64" => Self::F64,
+            _ => return None,
+        })
+    }
+    fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+    fn decode(self, b: &[u8], big_endian: bool) -> f64 {
+        macro_rules! num {
+            ($t:ty, $n:expr) => {{
+                let a: [u8; $n] = b[..$n].try_into().unwrap_or([0; $n]);
+                (if big_endian {
+                    <$t>::from_be_bytes(a)
+                } else {
+                    <$t>::from_le_bytes(a)
+                }) as f64
+            }};
+        }
+        match self {
+            Self::I8 => b[0] as i8 as f64,
+            Self::U8 => b[0] as f64,
+            Self::I16 => num!(i16, 2),
+            Self::U16 => num!(u16, 2),
+            Self::I32 => num!(i32, 4),
+            Self::U32 => num!(u32, 4),
+            Self::F32 => num!(f32, 4),
+            Self::F64 => num!(f64, 8),
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+enum PropertyKind {
+    Scalar(Scalar),
+    List { count: Scalar, item: Scalar },
+}
+
+#[derive(Debug, Clone)]
+struct Property {
+    name: String,
+    kind: PropertyKind,
+}
+
+#[derive(Debug, Clone)]
+struct Element {
+    name: String,
+    count: usize,
+    properties: Vec<Property>,
+}
+
+#[derive(Debug)]
+struct Header {
+    encoding: PlyEncoding,
+    elements: Vec<Element>,
+}
+
+fn header_err(path: &Path, msg: impl Into<String>) -> IoError {
+    IoError::new(path, IoErrorKind::PlyHeader(msg.into()))
+}
+fn data_err(path: &Path, msg: impl Into<String>) -> IoError {
+    IoError::new(path, IoErrorKind::PlyData(msg.into()))
+}
+
+fn read_header(path: &Path, r: &mut impl BufRead) -> Result<Header> {
+    let mut line = String::new();
+    let mut read_line = |line: &mut String, n: usize| -> Result<()> {
+        line.clear();
+        let got = r
+            .read_line(line)
+            .map_err(|e| IoError::new(path, e))?;
+        if got == 0 {
+            return Err(header_err(path, format!("file ends in the header (line {n})")));
+        }
+        Ok(())
+    };
+    read_line(&mut line, 1)?;
+    if line.trim_end() != "ply" {
+        return Err(header_err(path, "the file does not start with 'ply'"));
+    }
+    let mut encoding = None;
+    let mut elements: Vec<Element> = Vec::new();
+    for n in 2.. {
+        read_line(&mut line, n)?;
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.as_slice() {
+            [] | ["comment", ..] | ["obj_info", ..] => {}
+            ["format", fmt, _version] => {
+                encoding = Some(match *fmt {
+                    "ascii" => PlyEncoding::Ascii,
+                    "binary_little_endian" => PlyEncoding::BinaryLittleEndian,
+                    "binary_big_endian" => PlyEncoding::BinaryBigEndian,
+                    other => return Err(header_err(path, format!("line {n}: unknown format '{other}'"))),
+                })
+            }
+            ["element", name, count] => {
+                let count = count
+                    .parse()
+                    .map_err(|_| header_err(path, format!("line {n}: bad element count '{count}'")))?;
+                elements.push(Element {
+                    name: name.to_string(),
+                    count,
+                    properties: Vec::new(),
+                });
+            }
+            ["property", "list", count, item, name] => {
+                let (Some(count), Some(item)) = (Scalar::parse(count), Scalar::parse(item)) else {
+                    return Err(header_err(path, format!("line {n}: unknown list types")));
+                };
+                let el = elements
+                    .last_mut()
+                    .ok_or_else(|| header_err(path, format!("line {n}: property before any element")))?;
+                el.properties.push(Property {
+                    name: name.to_string(),
+                    kind: PropertyKind::List { count, item },
+                });
+            }
+            ["property", ty, name] => {
+                let ty = Scalar::parse(ty)
+                    .ok_or_else(|| header_err(path, format!("line {n}: unknown type '{ty}'")))?;
+                let el = elements
+                    .last_mut()
+                    .ok_or_else(|| header_err(path, format!("line {n}: property before any element")))?;
+                el.properties.push(Property {
+                    name: name.to_string(),
+                    kind: PropertyKind::Scalar(ty),
+                });
+            }
+            ["end_header"] => break,
+            _ => return Err(header_err(path, format!("line {n}: cannot parse '{}'", line.trim_end()))),
+        }
+    }
+    let encoding = encoding.ok_or_else(|| header_err(path, "no 'format' line"))?;
+    Ok(Header { encoding, elements })
+}
+
+/// A triangle mesh (faces with more than three corners are fan-triangulated on load).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Mesh {
+    pub vertices: PointCloud,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// Row source over either encoding.
+enum Body<R: BufRead> {
+    Ascii { reader: R, line: String, tokens: Vec<f64>, pos: usize, line_no: usize },
+    Binary { reader: R, big_endian: bool, buf: Vec<u8> },
+}
+
+impl<R: BufRead> Body<R> {
+    fn next_value(&mut self, path: &Path, ty: Scalar, what: &str) -> Result<f64> {
+        match self {
+            Body::Ascii { reader, line, tokens, pos, line_no } => {
+                while *pos >= tokens.len() {
+                    line.clear();
+                    *line_no += 1;
+                    let got = reader.read_line(line).map_err(|e| IoError::new(path, e))?;
+                    if got == 0 {
+                        return Err(data_err(path, format!("file ends early while reading {what}")));
+                    }
+                    tokens.clear();
+                    for t in line.split_whitespace() {
+                        tokens.push(t.parse().map_err(|_| {
+                            data_err(path, format!("body line {line_no}: '{t}' is not a number"))
+                        })?);
+                    }
+                    *pos = 0;
+                }
+                *pos += 1;
+                Ok(tokens[*pos - 1])
+            }
+            Body::Binary { reader, big_endian, buf } => {
+                let n = ty.size();
+                buf.resize(n, 0);
+                reader.read_exact(&mut buf[..n]).map_err(|e| {
+                    if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                        data_err(path, format!("file is truncated while reading {what}"))
+                    } else {
+                        IoError::new(path, e)
+                    }
+                })?;
+                Ok(ty.decode(buf, *big_endian))
+            }
+        }
+    }
+}
+
+/// Reads a PLY file as a mesh: vertices with every attribute we know, and triangles if there is a
+/// face element (a point cloud has none).
+pub fn read_ply(path: &Path) -> Result<Mesh> {
+    let file = std::fs::File::open(path).map_err(|e| IoError::new(path, e))?;
+    read_ply_from(path, BufReader::with_capacity(1 << 20, file))
+}
+
+/// Reads PLY from any buffered reader; `path` only names the source in errors.
+pub fn read_ply_from(path: &Path, mut reader: impl BufRead) -> Result<Mesh> {
+    let header = read_header(path, &mut reader)?;
+    let mut body = match header.encoding {
+        PlyEncoding::Ascii => Body::Ascii { reader, line: String::new(), tokens: Vec::new(), pos: 0, line_no: 0 },
+        e => Body::Binary { reader, big_endian: e == PlyEncoding::BinaryBigEndian, buf: Vec::new() },
+    };
+    let mut mesh = Mesh::default();
+    let mut saw_vertex = false;
+    for el in &header.elements {
+        if el.name == "vertex" {
+            saw_vertex = true;
+            mesh.vertices = read_vertices(path, el, &mut body)?;
+        } else if el.name == "face" {
+            mesh.triangles = read_faces(path, el, &mut body)?;
+        } else {
+            for row in 0..el.count {
+                for p in &el.properties {
+                    skip_property(path, p, &mut body, &format!("element '{}' row {row}", el.name))?;
+                }
+            }
+        }
+    }
+    if !saw_vertex {
+        return Err(header_err(path, "no 'vertex' element"));
+    }
+    let n = mesh.vertices.len() as u32;
+    if let Some((i, t)) = mesh.triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&v| v >= n)) {
+        return Err(data_err(path, format!("face {i} refers to vertex {:?}, but there are only {n}", t)));
+    }
+    mesh.vertices
+        .validate()
+        .map_err(|e| IoError::new(path, e))?;
+    Ok(mesh)
+}
+
+/// Reads a PLY file as a point cloud (faces, if any, are ignored). Errors on an empty cloud.
+pub fn read_point_cloud(path: &Path) -> Result<PointCloud> {
+    let cloud = read_ply(path)?.vertices;
+    if cloud.is_empty() {
+        return Err(data_err(path, "the cloud has no points"));
+    }
+    Ok(cloud)
+}
+
+fn skip_property<R: BufRead>(path: &Path, p: &Property, body: &mut Body<R>, what: &str) -> Result<()> {
+    match p.kind {
+        PropertyKind::Scalar(t) => {
+            body.next_value(path, t, what)?;
+        }
+        PropertyKind::List { count, item } => {
+            let n = body.next_value(path, count, what)?;
+            for _ in 0..(n.max(0.0) as usize) {
+                body.next_value(path, item, what)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<PointCloud> {
+    // Column of each known attribute, looked up once.
+    let find = |names: &[&str]| el.properties.iter().position(|p| names.contains(&p.name.as_str()));
+    let (Some(ix), Some(iy), Some(iz)) = (find(&["x"]), find(&["y"]), find(&["z"])) else {
+        return Err(header_err(path, "the vertex element lacks x, y or z"));
+    };
+    let color = match (find(&["red", "r", "diffuse_red"]), find(&["green", "g", "diffuse_green"]), find(&["blue", "b", "diffuse_blue"])) {
+        (Some(r), Some(g), Some(b)) => Some([r, g, b]),
+        _ => None,
+    };
+    let normal = match (find(&["nx"]), find(&["ny"]), find(&["nz"])) {
+        (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+        _ => None,
+    };
+    let instance = find(&["instance", "instance_id", "label"]);
+    let generated = find(&["generated"]);
+    // Colours stored as float (0..1) are scaled to bytes.
+    let color_is_float = color.is_some_and(|c| {
+        matches!(el.properties[c[0]].kind, PropertyKind::Scalar(Scalar::F32 | Scalar::F64))
+    });
+
+    let n = el.count;
+    let mut cloud = PointCloud {
+        positions: Vec::with_capacity(n),
+        colors: color.map(|_| Vec::with_capacity(n)),
+        normals: normal.map(|_| Vec::with_capacity(n)),
+        instance: instance.map(|_| Vec::with_capacity(n)),
+        generated: generated.map(|_| Vec::with_capacity(n)),
+    };
+    let mut row = vec![0.0f64; el.properties.len()];
+    for r in 0..n {
+        for (j, p) in el.properties.iter().enumerate() {
+            match p.kind {
+                PropertyKind::Scalar(t) => row[j] = body.next_value(path, t, &format!("vertex {r}"))?,
+                PropertyKind::List { .. } => skip_property(path, p, body, &format!("vertex {r}"))?,
+            }
+        }
+        let p = Point3::new(row[ix] as f32, row[iy] as f32, row[iz] as f32);
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            return Err(data_err(path, format!("vertex {r} has a non-finite coordinate ({}, {}, {})", p.x, p.y, p.z)));
+        }
+        cloud.positions.push(p);
+        if let (Some(c), Some(out)) = (color, cloud.colors.as_mut()) {
+            let scale = if color_is_float { 255.0 } else { 1.0 };
+            out.push(c.map(|k| (row[k] * scale).round().clamp(0.0, 255.0) as u8));
+        }
+        if let (Some(c), Some(out)) = (normal, cloud.normals.as_mut()) {
+            out.push(Vector3::new(row[c[0]] as f32, row[c[1]] as f32, row[c[2]] as f32));
+        }
+        if let (Some(k), Some(out)) = (instance, cloud.instance.as_mut()) {
+            out.push(row[k].max(0.0) as u32);
+        }
+        if let (Some(k), Some(out)) = (generated, cloud.generated.as_mut()) {
+            out.push((row[k] != 0.0) as u8);
+        }
+    }
+    Ok(cloud)
+}
+
+fn read_faces<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<Vec<[u32; 3]>> {
+    let idx = el
+        .properties
+        .iter()
+        .position(|p| matches!(p.kind, PropertyKind::List { .. }) && (p.name == "vertex_indices" || p.name == "vertex_index"));
+    let Some(idx) = idx else {
+        return Err(header_err(path, "the face element has no vertex_indices list"));
+    };
+    let mut tris = Vec::with_capacity(el.count);
+    let mut corners = Vec::new();
+    for r in 0..el.count {
+        for (j, p) in el.properties.iter().enumerate() {
+            let what = format!("face {r}");
+            if j != idx {
+                skip_property(path, p, body, &what)?;
+                continue;
+            }
+            let PropertyKind::List { count, item } = p.kind else { unreachable!() };
+            let k = body.next_value(path, count, &what)?;
+            if !(0.0..=1e6).contains(&k) {
+                return Err(data_err(path, format!("face {r} has {k} corners")));
+            }
+            corners.clear();
+            for _ in 0..k as usize {
+                let v = body.next_value(path, item, &what)?;
+                if v < 0.0 {
+                    return Err(data_err(path, format!("face {r} has a negative vertex index")));
+                }
+                corners.push(v as u32);
+            }
+            for i in 1..corners.len().saturating_sub(1) {
+                tris.push([corners[0], corners[i], corners[i + 1]]);
+            }
+        }
+    }
+    Ok(tris)
+}
+
+/// Writes a point cloud as PLY, atomically (a temporary file renamed into place).
+pub fn write_point_cloud(path: &Path, cloud: &PointCloud, encoding: PlyEncoding) -> Result<()> {
+    write_mesh(path, cloud, &[], encoding)
+}
+
+/// Writes vertices (with their attributes) and triangles as PLY, atomically.
+pub fn write_mesh(path: &Path, vertices: &PointCloud, triangles: &[[u32; 3]], encoding: PlyEncoding) -> Result<()> {
+    vertices.validate().map_err(|e| IoError::new(path, e))?;
+    write_atomic(path, |w| {
+        let fmt = match encoding {
+            PlyEncoding::Ascii => "ascii",
+            PlyEncoding::BinaryLittleEndian => "binary_little_endian",
+            PlyEncoding::BinaryBigEndian => "binary_big_endian",
+        };
+        writeln!(w, "ply\nformat {fmt} 1.0\ncomment written by deocc")?;
+        writeln!(w, "element vertex {}", vertices.len())?;
+        writeln!(w, "property float x\nproperty float y\nproperty float z")?;
+        if vertices.normals.is_some() {
+            writeln!(w, "property float nx\nproperty float ny\nproperty float nz")?;
+        }
+        if vertices.colors.is_some() {
+            writeln!(w, "property uchar red\nproperty uchar green\nproperty uchar blue")?;
+        }
+        if vertices.instance.is_some() {
+            writeln!(w, "property uint instance")?;
+        }
+        if vertices.generated.is_some() {
+            writeln!(w, "property uchar generated")?;
+        }
+        if !triangles.is_empty() {
+            writeln!(w, "element face {}\nproperty list uchar uint vertex_indices", triangles.len())?;
+        }
+        writeln!(w, "end_header")?;
+        match encoding {
+            PlyEncoding::Ascii => write_ascii_body(w, vertices, triangles),
+            e => write_binary_body(w, vertices, triangles, e == PlyEncoding::BinaryBigEndian),
+        }
+    })
+}
+
+fn write_ascii_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]]) -> std::io::Result<()> {
+    for i in 0..c.len() {
+        let p = c.positions[i];
+        // `{}` on f32 prints the shortest string that parses back to the same value: bit-exact.
+        write!(w, "{} {} {}", p.x, p.y, p.z)?;
+        if let Some(n) = &c.normals {
+            write!(w, " {} {} {}", n[i].x, n[i].y, n[i].z)?;
+        }
+        if let Some(col) = &c.colors {
+            write!(w, " {} {} {}", col[i][0], col[i][1], col[i][2])?;
+        }
+        if let Some(ids) = &c.instance {
+            write!(w, " {}", ids[i])?;
+        }
+        if let Some(g) = &c.generated {
+            write!(w, " {}", g[i])?;
+        }
+        writeln!(w)?;
+    }
+    for t in tris {
+        writeln!(w, "3 {} {} {}", t[0], t[1], t[2])?;
+    }
+    Ok(())
+}
+
+fn write_binary_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]], big_endian: bool) -> std::io::Result<()> {
+    let f = |v: f32| if big_endian { v.to_be_bytes() } else { v.to_le_bytes() };
+    let u = |v: u32| if big_endian { v.to_be_bytes() } else { v.to_le_bytes() };
+    let mut row = Vec::with_capacity(64);
+    for i in 0..c.len() {
+        row.clear();
+        let p = c.positions[i];
+        for v in [p.x, p.y, p.z] {
+            row.extend_from_slice(&f(v));
+        }
+        if let Some(n) = &c.normals {
+            for v in [n[i].x, n[i].y, n[i].z] {
+                row.extend_from_slice(&f(v));
+            }
+        }
+        if let Some(col) = &c.colors {
+            row.extend_from_slice(&col[i]);
+        }
+        if let Some(ids) = &c.instance {
+            row.extend_from_slice(&u(ids[i]));
+        }
+        if let Some(g) = &c.generated {
+            row.push(g[i]);
+        }
+        w.write_all(&row)?;
+    }
+    for t in tris {
+        row.clear();
+        row.push(3);
+        for &v in t {
+            row.extend_from_slice(&u(v));
+        }
+        w.write_all(&row)?;
+    }
+    Ok(())
+}

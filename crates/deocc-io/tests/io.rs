@@ -1,0 +1,210 @@
+use std::path::Path;
+
+use deocc_geometry::{DepthMap, Intrinsics, PointCloud};
+use deocc_io::cameras::{read_cameras_json, write_cameras_json, FrameCamera};
+use deocc_io::images::{read_depth_png, read_instance_png, write_depth_png, write_instance_png, write_rgb_png, InstanceMap};
+use deocc_io::mesh::read_mesh;
+use deocc_io::ply::{read_ply, write_mesh};
+use deocc_io::{read_point_cloud, write_point_cloud, PlyEncoding};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+
+/// A cloud with awkward floats (tiny, huge, negative zero, subnormal) and every attribute.
+fn awkward_cloud() -> PointCloud {
+    let mut state = 0x1234_5678_9abc_def0u64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let mut positions: Vec<Point3<f32>> = (0..1000)
+        .map(|_| {
+            let f = |b: u64| f32::from_bits((b as u32 & 0x807f_ffff) | (((b >> 32) as u32 % 60 + 100) << 23));
+            Point3::new(f(next()), f(next()), f(next()))
+        })
+        .collect();
+    positions.push(Point3::new(-0.0, 1e-30, f32::MIN_POSITIVE / 4.0));
+    positions.push(Point3::new(f32::MAX, -f32::MAX, 0.1));
+    let n = positions.len();
+    PointCloud {
+        colors: Some((0..n).map(|i| [(i % 256) as u8, (i * 7 % 256) as u8, 255]).collect()),
+        normals: Some((0..n).map(|i| Vector3::new(i as f32 * 0.001, -0.5, 0.25)).collect()),
+        instance: Some((0..n).map(|i| (i as u32).wrapping_mul(2_654_435_761)).collect()),
+        generated: Some((0..n).map(|i| (i % 2) as u8).collect()),
+        positions,
+    }
+}
+
+fn bits(c: &PointCloud) -> Vec<u32> {
+    c.positions.iter().flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]).collect()
+}
+
+#[test]
+fn ply_round_trips_bit_exactly_in_every_encoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = awkward_cloud();
+    for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian, PlyEncoding::BinaryBigEndian] {
+        let path = dir.path().join(format!("{enc:?}.ply"));
+        write_point_cloud(&path, &cloud, enc).unwrap();
+        let back = read_point_cloud(&path).unwrap();
+        assert_eq!(bits(&back), bits(&cloud), "{enc:?}");
+        assert_eq!(back.colors, cloud.colors);
+        assert_eq!(back.instance, cloud.instance);
+        assert_eq!(back.generated, cloud.generated);
+        let nb: Vec<u32> = back.normals.unwrap().iter().flat_map(|n| n.iter().map(|v| v.to_bits()).collect::<Vec<_>>()).collect();
+        let na: Vec<u32> = cloud.normals.as_ref().unwrap().iter().flat_map(|n| n.iter().map(|v| v.to_bits()).collect::<Vec<_>>()).collect();
+        assert_eq!(nb, na);
+    }
+}
+
+#[test]
+fn ply_mesh_round_trips() {
+    let dir = tempfile::tempdir().unwrap();
+    let verts = PointCloud::from_positions(vec![Point3::origin(), Point3::new(1.0, 0.0, 0.0), Point3::new(0.0, 1.0, 0.0), Point3::new(1.0, 1.0, 0.0)]);
+    let tris = vec![[0, 1, 2], [1, 3, 2]];
+    for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
+        let path = dir.path().join("m.ply");
+        write_mesh(&path, &verts, &tris, enc).unwrap();
+        let m = read_ply(&path).unwrap();
+        assert_eq!(m.triangles, tris);
+        assert_eq!(m.vertices.positions, verts.positions);
+    }
+}
+
+fn err_text(r: Result<impl std::fmt::Debug, deocc_io::IoError>) -> String {
+    r.expect_err("expected an error").to_string()
+}
+
+#[test]
+fn ply_errors_name_the_file_and_the_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.ply");
+    write_point_cloud(&good, &awkward_cloud(), PlyEncoding::BinaryLittleEndian).unwrap();
+    let bytes = std::fs::read(&good).unwrap();
+
+    let truncated = dir.path().join("truncated.ply");
+    std::fs::write(&truncated, &bytes[..bytes.len() - 7]).unwrap();
+    let e = err_text(read_point_cloud(&truncated));
+    assert!(e.contains("truncated.ply") && e.contains("truncated"), "{e}");
+
+    let cases: [(&str, &[u8], &str); 6] = [
+        ("notply.ply", b"hello\n", "does not start with 'ply'"),
+        ("noformat.ply", b"ply\nelement vertex 1\nproperty float x\nend_header\n", "no 'format'"),
+        ("badtype.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty quux x\nend_header\n", "unknown type"),
+        ("noxyz.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n", "lacks x, y or z"),
+        ("nan.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 nan 2\n", "non-finite"),
+        ("empty.ply", b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n", "no points"),
+    ];
+    for (name, content, expect) in cases {
+        let p = dir.path().join(name);
+        std::fs::write(&p, content).unwrap();
+        let e = err_text(read_point_cloud(&p));
+        assert!(e.contains(name) && e.contains(expect), "{name}: {e}");
+    }
+    let badface = dir.path().join("badface.ply");
+    std::fs::write(&badface, b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n3 0 1 2\n").unwrap();
+    assert!(err_text(read_ply(&badface)).contains("only 1"));
+    let missing = dir.path().join("missing.ply");
+    assert!(err_text(read_point_cloud(&missing)).contains("missing.ply"));
+}
+
+#[test]
+fn writing_a_non_finite_cloud_fails_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("bad.ply");
+    let cloud = PointCloud::from_positions(vec![Point3::new(f32::NAN, 0.0, 0.0)]);
+    assert!(write_point_cloud(&p, &cloud, PlyEncoding::Ascii).is_err());
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    // An unwritable place: error naming it, nothing created.
+    let nowhere = dir.path().join("no/such/dir/x.ply");
+    let e = err_text(write_point_cloud(&nowhere, &awkward_cloud(), PlyEncoding::Ascii));
+    assert!(e.contains("x.ply"), "{e}");
+}
+
+#[test]
+fn depth_png_round_trips_in_millimetres() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("d.png");
+    let data: Vec<f32> = (0..64 * 48).map(|i| if i % 5 == 0 { 0.0 } else { 0.5 + i as f32 * 0.001 }).collect();
+    let depth = DepthMap::new(64, 48, data.clone()).unwrap();
+    write_depth_png(&p, &depth).unwrap();
+    let back = read_depth_png(&p).unwrap();
+    assert_eq!((back.width(), back.height()), (64, 48));
+    for (a, b) in back.data().iter().zip(&data) {
+        assert!((a - b).abs() <= 0.0005 + 1e-6, "{a} vs {b}");
+    }
+}
+
+#[test]
+fn depth_png_rejects_8_bit_and_corrupt_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let rgb = dir.path().join("rgb.png");
+    write_rgb_png(&rgb, &image::RgbImage::new(4, 4)).unwrap();
+    let e = err_text(read_depth_png(&rgb));
+    assert!(e.contains("rgb.png") && e.contains("16-bit"), "{e}");
+    let corrupt = dir.path().join("corrupt.png");
+    std::fs::write(&corrupt, b"\x89PNG\r\n\x1a\nnot really").unwrap();
+    assert!(err_text(read_depth_png(&corrupt)).contains("corrupt.png"));
+}
+
+#[test]
+fn instance_png_round_trips() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("i.png");
+    let map = InstanceMap { width: 8, height: 4, ids: (0..32).map(|i| i * 1000).collect() };
+    write_instance_png(&p, &map).unwrap();
+    assert_eq!(read_instance_png(&p).unwrap(), map);
+}
+
+#[test]
+fn cameras_json_round_trips_and_validates() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("cameras.json");
+    let pose = Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3));
+    let frames = vec![
+        FrameCamera { name: "a".into(), intrinsics: Intrinsics::new(500.0, 510.0, 320.0, 240.0, 640, 480).unwrap(), world_from_camera: Some(pose) },
+        FrameCamera { name: "b".into(), intrinsics: Intrinsics::new(500.0, 510.0, 320.0, 240.0, 640, 480).unwrap(), world_from_camera: None },
+    ];
+    write_cameras_json(&p, &frames).unwrap();
+    let back = read_cameras_json(&p).unwrap();
+    assert_eq!(back.len(), 2);
+    assert_eq!(back[0].intrinsics, frames[0].intrinsics);
+    let d = back[0].world_from_camera.unwrap().inverse() * pose;
+    assert!(d.translation.vector.norm() < 1e-6 && d.rotation.angle() < 1e-6);
+    assert!(back[1].world_from_camera.is_none());
+
+    let bad_focal = dir.path().join("bad_focal.json");
+    std::fs::write(&bad_focal, r#"{"frames":[{"name":"x","intrinsics":{"fx":0,"fy":1,"cx":0,"cy":0,"width":4,"height":4}}]}"#).unwrap();
+    let e = err_text(read_cameras_json(&bad_focal));
+    assert!(e.contains("bad_focal.json") && e.contains("focal"), "{e}");
+    let bad_pose = dir.path().join("bad_pose.json");
+    std::fs::write(&bad_pose, r#"{"frames":[{"name":"x","intrinsics":{"fx":1,"fy":1,"cx":0,"cy":0,"width":4,"height":4},"world_from_camera":[[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}"#).unwrap();
+    assert!(err_text(read_cameras_json(&bad_pose)).contains("orthonormal"));
+}
+
+#[test]
+fn obj_and_stl_meshes_load() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("quad.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1 2/2 3/3 4/4\n").unwrap();
+    let m = read_mesh(&obj).unwrap();
+    assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+    let stl = dir.path().join("tri.stl");
+    std::fs::write(&stl, "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid\n").unwrap();
+    assert_eq!(read_mesh(&stl).unwrap().triangles.len(), 1);
+    // Binary STL: 80-byte header, count, one triangle.
+    let mut b = vec![0u8; 80];
+    b.extend_from_slice(&1u32.to_le_bytes());
+    for v in [0f32, 0., 1., 0., 0., 0., 1., 0., 0., 0., 1., 0.] {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    b.extend_from_slice(&[0, 0]);
+    let bstl = dir.path().join("bin.stl");
+    std::fs::write(&bstl, &b).unwrap();
+    let m = read_mesh(&bstl).unwrap();
+    assert_eq!(m.vertices.positions[1], Point3::new(1.0, 0.0, 0.0));
+    let bad = dir.path().join("bad.obj");
+    std::fs::write(&bad, "v 0 0 0\nf 1 2 3\n").unwrap();
+    assert!(err_text(read_mesh(&bad)).contains("out of range"));
+    assert!(err_text(read_mesh(Path::new("x.fbx"))).contains("unknown mesh format"));
+}
