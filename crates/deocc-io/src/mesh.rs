@@ -64,7 +64,7 @@ pub fn read_obj(path: &Path) -> Result<Mesh> {
             _ => {}
         }
     }
-    Ok(Mesh { vertices: PointCloud::from_positions(positions), triangles })
+    Ok(Mesh { vertices: PointCloud::from_positions(positions), triangles, extras: Vec::new() })
 }
 
 /// STL, binary or ASCII (vertices are not de-duplicated: every triangle has its own three).
@@ -106,5 +106,5 @@ pub fn read_stl(path: &Path) -> Result<Mesh> {
         return Err(IoError::invalid(path, format!("vertex {i} is not finite")));
     }
     let triangles = (0..positions.len() as u32 / 3).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
-    Ok(Mesh { vertices: PointCloud::from_positions(positions), triangles })
+    Ok(Mesh { vertices: PointCloud::from_positions(positions), triangles, extras: Vec::new() })
 }

@@ -193,6 +193,15 @@ fn read_header(path: &Path, r: &mut impl BufRead) -> Result<Header> {
 pub struct Mesh {
     pub vertices: PointCloud,
     pub triangles: Vec<[u32; 3]>,
+    /// Vertex properties we do not interpret (e.g. the benchmark's `seen` flag), by name.
+    pub extras: Vec<(String, Vec<f64>)>,
+}
+
+impl Mesh {
+    /// An uninterpreted vertex property by name.
+    pub fn extra(&self, name: &str) -> Option<&[f64]> {
+        self.extras.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
+    }
 }
 
 /// Row source over either encoding.
@@ -258,7 +267,7 @@ pub fn read_ply_from(path: &Path, mut reader: impl BufRead) -> Result<Mesh> {
     for el in &header.elements {
         if el.name == "vertex" {
             saw_vertex = true;
-            mesh.vertices = read_vertices(path, el, &mut body)?;
+            (mesh.vertices, mesh.extras) = read_vertices(path, el, &mut body)?;
         } else if el.name == "face" {
             mesh.triangles = read_faces(path, el, &mut body)?;
         } else {
@@ -306,7 +315,13 @@ fn skip_property<R: BufRead>(path: &Path, p: &Property, body: &mut Body<R>, what
     Ok(())
 }
 
-fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<PointCloud> {
+const KNOWN_VERTEX_PROPERTIES: [&str; 18] = [
+    "x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "r", "g", "b", "diffuse_red", "diffuse_green", "diffuse_blue", "instance", "instance_id", "generated",
+];
+
+type VertexData = (PointCloud, Vec<(String, Vec<f64>)>);
+
+fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<VertexData> {
     // Column of each known attribute, looked up once.
     let find = |names: &[&str]| el.properties.iter().position(|p| names.contains(&p.name.as_str()));
     let (Some(ix), Some(iy), Some(iz)) = (find(&["x"]), find(&["y"]), find(&["z"])) else {
@@ -335,6 +350,17 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
         instance: instance.map(|_| Vec::with_capacity(n)),
         generated: generated.map(|_| Vec::with_capacity(n)),
     };
+    let extra_columns: Vec<usize> = (0..el.properties.len())
+        .filter(|&j| {
+            matches!(el.properties[j].kind, PropertyKind::Scalar(_))
+                && !KNOWN_VERTEX_PROPERTIES.contains(&el.properties[j].name.as_str())
+                && !(el.properties[j].name == "label" && instance == Some(j))
+        })
+        .collect();
+    let mut extras: Vec<(String, Vec<f64>)> = extra_columns
+        .iter()
+        .map(|&j| (el.properties[j].name.clone(), Vec::with_capacity(n)))
+        .collect();
     let mut row = vec![0.0f64; el.properties.len()];
     for r in 0..n {
         for (j, p) in el.properties.iter().enumerate() {
@@ -361,8 +387,11 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
         if let (Some(k), Some(out)) = (generated, cloud.generated.as_mut()) {
             out.push((row[k] != 0.0) as u8);
         }
+        for (e, &j) in extras.iter_mut().zip(&extra_columns) {
+            e.1.push(row[j]);
+        }
     }
-    Ok(cloud)
+    Ok((cloud, extras))
 }
 
 fn read_faces<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<Vec<[u32; 3]>> {
@@ -408,9 +437,24 @@ pub fn write_point_cloud(path: &Path, cloud: &PointCloud, encoding: PlyEncoding)
     write_mesh(path, cloud, &[], encoding)
 }
 
+/// A per-vertex u8 property beyond the ones [`PointCloud`] knows (e.g. `seen`).
+pub type ExtraU8<'a> = (&'a str, &'a [u8]);
+
+/// Writes a point cloud with extra u8 vertex properties, atomically.
+pub fn write_point_cloud_with_extras(path: &Path, cloud: &PointCloud, extras: &[ExtraU8], encoding: PlyEncoding) -> Result<()> {
+    write_ply_impl(path, cloud, &[], extras, encoding)
+}
+
 /// Writes vertices (with their attributes) and triangles as PLY, atomically.
 pub fn write_mesh(path: &Path, vertices: &PointCloud, triangles: &[[u32; 3]], encoding: PlyEncoding) -> Result<()> {
+    write_ply_impl(path, vertices, triangles, &[], encoding)
+}
+
+fn write_ply_impl(path: &Path, vertices: &PointCloud, triangles: &[[u32; 3]], extras: &[ExtraU8], encoding: PlyEncoding) -> Result<()> {
     vertices.validate().map_err(|e| IoError::new(path, e))?;
+    if let Some((name, v)) = extras.iter().find(|(_, v)| v.len() != vertices.len()) {
+        return Err(IoError::invalid(path, format!("extra property '{name}' has {} values for {} points", v.len(), vertices.len())));
+    }
     write_atomic(path, |w| {
         let fmt = match encoding {
             PlyEncoding::Ascii => "ascii",
@@ -432,18 +476,21 @@ pub fn write_mesh(path: &Path, vertices: &PointCloud, triangles: &[[u32; 3]], en
         if vertices.generated.is_some() {
             writeln!(w, "property uchar generated")?;
         }
+        for (name, _) in extras {
+            writeln!(w, "property uchar {name}")?;
+        }
         if !triangles.is_empty() {
             writeln!(w, "element face {}\nproperty list uchar uint vertex_indices", triangles.len())?;
         }
         writeln!(w, "end_header")?;
         match encoding {
-            PlyEncoding::Ascii => write_ascii_body(w, vertices, triangles),
-            e => write_binary_body(w, vertices, triangles, e == PlyEncoding::BinaryBigEndian),
+            PlyEncoding::Ascii => write_ascii_body(w, vertices, triangles, extras),
+            e => write_binary_body(w, vertices, triangles, extras, e == PlyEncoding::BinaryBigEndian),
         }
     })
 }
 
-fn write_ascii_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]]) -> std::io::Result<()> {
+fn write_ascii_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]], extras: &[ExtraU8]) -> std::io::Result<()> {
     for i in 0..c.len() {
         let p = c.positions[i];
         // `{}` on f32 prints the shortest string that parses back to the same value: bit-exact.
@@ -460,6 +507,9 @@ fn write_ascii_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]]) -> st
         if let Some(g) = &c.generated {
             write!(w, " {}", g[i])?;
         }
+        for (_, v) in extras {
+            write!(w, " {}", v[i])?;
+        }
         writeln!(w)?;
     }
     for t in tris {
@@ -468,7 +518,7 @@ fn write_ascii_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]]) -> st
     Ok(())
 }
 
-fn write_binary_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]], big_endian: bool) -> std::io::Result<()> {
+fn write_binary_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]], extras: &[ExtraU8], big_endian: bool) -> std::io::Result<()> {
     let f = |v: f32| if big_endian { v.to_be_bytes() } else { v.to_le_bytes() };
     let u = |v: u32| if big_endian { v.to_be_bytes() } else { v.to_le_bytes() };
     let mut row = Vec::with_capacity(64);
@@ -491,6 +541,9 @@ fn write_binary_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]], big_
         }
         if let Some(g) = &c.generated {
             row.push(g[i]);
+        }
+        for (_, v) in extras {
+            row.push(v[i]);
         }
         w.write_all(&row)?;
     }

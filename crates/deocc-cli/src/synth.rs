@@ -1,0 +1,280 @@
+//! `deocc synth`: scenes, training pairs, contact sheets.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use deocc_synth::dataset::{preset, render_full_scene, scene_dir, set_stats, write_scene, Preset, SceneInfo};
+use deocc_synth::pairs::{save_pairs, split_scene_pairs, PairConfig, PairSet, Split};
+use deocc_synth::scene::{CameraPath, SceneConfig, UserMesh};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::progress::bar;
+
+#[derive(Subcommand)]
+pub enum SynthCommand {
+    /// Render scenes (RGB, depth, instances, amodal masks, cameras, ground-truth cloud) to a folder.
+    Scenes(ScenesArgs),
+    /// Render amodal training pairs for GL-DoT into safetensors shards.
+    Pairs(PairsArgs),
+    /// Write a contact sheet PNG (RGB | depth | instances | amodal) of one scene.
+    Sheet(SheetArgs),
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum PathArg {
+    RobotHead,
+    Arc,
+    Single,
+}
+
+#[derive(Args)]
+pub struct SceneOptions {
+    /// Views per scene.
+    #[arg(long, default_value_t = 10)]
+    views: usize,
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    #[arg(long, value_enum, default_value_t = PathArg::RobotHead)]
+    camera_path: PathArg,
+    /// Include the held-out shapes (vase, L-bracket), as test scenes do.
+    #[arg(long)]
+    held_out_shapes: bool,
+    /// Add depth noise and drop depth at grazing angles.
+    #[arg(long)]
+    sensor_noise: bool,
+    /// Ground-truth surface samples per square metre.
+    #[arg(long, default_value_t = 10_000.0)]
+    gt_density: f32,
+    /// A user mesh to put on the table, as PATH=SIZE_M (OBJ, PLY or STL), repeatable.
+    #[arg(long = "mesh", value_name = "PATH=SIZE_M")]
+    meshes: Vec<String>,
+}
+
+impl SceneOptions {
+    fn config(&self) -> Result<SceneConfig> {
+        let user_meshes = self
+            .meshes
+            .iter()
+            .map(|m| {
+                let (path, size) = m.rsplit_once('=').context("--mesh takes PATH=SIZE_M, e.g. bunny.ply=0.15")?;
+                let size_m: f32 = size.parse().with_context(|| format!("--mesh {m}: '{size}' is not a size in metres"))?;
+                if !(size_m > 0.0 && size_m < 2.0) {
+                    bail!("--mesh {m}: size must be in (0, 2) metres");
+                }
+                Ok(UserMesh { path: PathBuf::from(path), size_m })
+            })
+            .collect::<Result<_>>()?;
+        if self.views == 0 || self.width < 16 || self.height < 16 {
+            bail!("need at least one view and an image of at least 16x16 pixels");
+        }
+        Ok(SceneConfig {
+            width: self.width,
+            height: self.height,
+            views: self.views,
+            camera_path: match self.camera_path {
+                PathArg::RobotHead => CameraPath::RobotHead,
+                PathArg::Arc => CameraPath::Arc,
+                PathArg::Single => CameraPath::Single,
+            },
+            held_out_shapes: self.held_out_shapes,
+            sensor_noise: self.sensor_noise,
+            gt_points_per_m2: self.gt_density,
+            user_meshes,
+            ..SceneConfig::default()
+        })
+    }
+}
+
+#[derive(Args)]
+pub struct ScenesArgs {
+    /// Number of scenes (scene i has seed SEED + i).
+    #[arg(long, default_value_t = 1)]
+    count: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// A named preset instead of --count/--seed and the scene options: bench-v1, bench-v1-small.
+    #[arg(long)]
+    preset: Option<String>,
+    /// Output folder (scene_000000/, ..., manifest.json, stats.json).
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    options: SceneOptions,
+}
+
+#[derive(Args)]
+pub struct PairsArgs {
+    #[arg(long, value_enum)]
+    split: SplitArg,
+    /// Number of scenes to render pairs from.
+    #[arg(long, default_value_t = 100)]
+    scenes: u64,
+    /// First scene index (to extend a set).
+    #[arg(long, default_value_t = 0)]
+    start: u64,
+    /// Scenes per shard file.
+    #[arg(long, default_value_t = 50)]
+    scenes_per_shard: u64,
+    #[arg(long, default_value_t = 64)]
+    resolution: u32,
+    /// Output folder for {split}-NNNNN.safetensors shards and manifest.json.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum SplitArg {
+    Train,
+    Val,
+    Test,
+}
+
+#[derive(Args)]
+pub struct SheetArgs {
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Show training pairs from this shard instead of a scene (crop | visible | whole | amodal | depth).
+    #[arg(long)]
+    pairs: Option<PathBuf>,
+    /// Views shown (rows).
+    #[arg(long, default_value_t = 3)]
+    rows: usize,
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    options: SceneOptions,
+}
+
+pub fn run(cmd: SynthCommand) -> Result<()> {
+    match cmd {
+        SynthCommand::Scenes(a) => scenes(a),
+        SynthCommand::Pairs(a) => pairs(a),
+        SynthCommand::Sheet(a) => sheet(a),
+    }
+}
+
+#[derive(Serialize)]
+struct Manifest<'a> {
+    preset: &'a Preset,
+    scenes: Vec<String>,
+}
+
+fn create_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the output folder", dir.display()))
+}
+
+fn scenes(a: ScenesArgs) -> Result<()> {
+    let p = match &a.preset {
+        Some(name) => preset(name)?,
+        None => Preset { name: "custom".into(), config: a.options.config()?, seeds: (a.seed..a.seed + a.count as u64).collect() },
+    };
+    create_dir(&a.out)?;
+    let pb = bar(p.seeds.len() as u64, "scenes");
+    let infos: Vec<SceneInfo> = p
+        .seeds
+        .iter()
+        .enumerate()
+        .map(|(i, &seed)| {
+            let rendered = render_full_scene(&p.config, seed)?;
+            let info = write_scene(&scene_dir(&a.out, i), &p.config, &rendered)?;
+            pb.inc(1);
+            Ok(info)
+        })
+        .collect::<Result<_>>()?;
+    pb.finish_and_clear();
+    let manifest = Manifest { preset: &p, scenes: (0..infos.len()).map(|i| format!("scene_{i:06}")).collect() };
+    deocc_io::cameras::write_json(&a.out.join("manifest.json"), &manifest)?;
+    let stats = set_stats(&infos);
+    deocc_io::cameras::write_json(&a.out.join("stats.json"), &stats)?;
+    println!(
+        "wrote {} scenes ({} views) to {}: {:.1} objects per scene; object views unoccluded {}, light {}, heavy {}",
+        stats.scenes,
+        stats.views,
+        a.out.display(),
+        stats.objects_per_scene_mean,
+        stats.unoccluded,
+        stats.light,
+        stats.heavy
+    );
+    Ok(())
+}
+
+fn pairs(a: PairsArgs) -> Result<()> {
+    let split = match a.split {
+        SplitArg::Train => Split::Train,
+        SplitArg::Val => Split::Val,
+        SplitArg::Test => Split::Test,
+    };
+    if a.scenes_per_shard == 0 || a.resolution < 8 {
+        bail!("--scenes-per-shard must be positive and --resolution at least 8");
+    }
+    create_dir(&a.out)?;
+    let config = PairConfig { resolution: a.resolution, ..PairConfig::default() };
+    let name = format!("{split:?}").to_lowercase();
+    let pb = bar(a.scenes, "pairs");
+    let mut shards = Vec::new();
+    let mut total = 0;
+    let mut first = a.start;
+    while first < a.start + a.scenes {
+        let last = (first + a.scenes_per_shard).min(a.start + a.scenes);
+        let parts: Vec<PairSet> = (first..last)
+            .into_par_iter()
+            .map(|i| {
+                let s = split_scene_pairs(split, i, &config);
+                pb.inc(1);
+                s
+            })
+            .collect::<Result<_, _>>()?;
+        let mut set = PairSet { resolution: a.resolution, ..Default::default() };
+        for p in &parts {
+            set.extend(p);
+        }
+        let file = format!("{name}-{:05}.safetensors", first / a.scenes_per_shard);
+        save_pairs(&a.out.join(&file), &set)?;
+        total += set.len();
+        shards.push(file);
+        first = last;
+    }
+    pb.finish_and_clear();
+    #[derive(Serialize)]
+    struct PairsManifest {
+        split: Split,
+        config: PairConfig,
+        scenes: std::ops::Range<u64>,
+        pairs: usize,
+        shards: Vec<String>,
+    }
+    deocc_io::cameras::write_json(
+        &a.out.join(format!("{name}-manifest.json")),
+        &PairsManifest { split, config, scenes: a.start..a.start + a.scenes, pairs: total, shards },
+    )?;
+    println!("wrote {total} {name} pairs from {} scenes to {}", a.scenes, a.out.display());
+    Ok(())
+}
+
+fn sheet(a: SheetArgs) -> Result<()> {
+    if let Some(path) = &a.pairs {
+        let set = deocc_synth::pairs::load_pairs(path)?;
+        if set.is_empty() {
+            bail!("{}: no pairs", path.display());
+        }
+        let step = (set.len() / a.rows.max(1)).max(1);
+        let idx: Vec<usize> = (0..set.len()).step_by(step).take(a.rows.max(1)).collect();
+        deocc_io::images::write_rgb_png(&a.out, &deocc_synth::sheet::pair_sheet(&set, &idx))?;
+        println!("wrote {}", a.out.display());
+        return Ok(());
+    }
+    let config = a.options.config()?;
+    let rendered = render_full_scene(&config, a.seed)?;
+    let n = a.rows.clamp(1, rendered.views.len());
+    let step = (rendered.views.len() / n).max(1);
+    let picked: Vec<_> = rendered.views.into_iter().step_by(step).take(n).collect();
+    let img = deocc_synth::sheet::contact_sheet(&picked);
+    deocc_io::images::write_rgb_png(&a.out, &img)?;
+    println!("wrote {}", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,275 @@
+//! Rendering scenes to disk in the documented layout, and the `bench-v1` benchmark definition.
+//!
+//! ```text
+//! scene_000000/
+//!   scene.json            seed, config, objects (id, category), per-view visibility statistics
+//!   cameras.json          intrinsics + world_from_camera per frame (deocc-io format)
+//!   rgb/000000.png        8-bit RGB
+//!   depth/000000.png      16-bit depth, millimetres, 0 = no measurement
+//!   instances/000000.png  16-bit visible instance ids, 0 = background
+//!   amodal/000000/0007.png  8-bit amodal mask of instance 7 in view 0 (objects in view only)
+//!   ground_truth.ply      dense surface samples: x y z nx ny nz instance seen
+//! ```
+//! `deocc run` reads the same layout (rgb/, depth/, cameras.json, optional instances/).
+
+use std::path::{Path, PathBuf};
+
+use deocc_geometry::camera::Camera;
+use deocc_geometry::DepthMap;
+use deocc_io::cameras::{write_cameras_json, write_json, FrameCamera};
+use deocc_io::images::{write_depth_png, write_instance_png, write_mask_png, write_rgb_png, InstanceMap};
+use deocc_io::ply::write_point_cloud_with_extras;
+use deocc_io::PlyEncoding;
+use image::RgbImage;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::ground_truth::{sample_surfaces, seen_flags, GroundTruth};
+use crate::render::{add_sensor_noise, render_object, render_scene, shade, Frame, SceneTriangles};
+use crate::scene::{generate_scene, CameraPath, Scene, SceneConfig};
+use crate::{Result, SynthError};
+
+/// One object's visibility in one view.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct Visibility {
+    pub view: usize,
+    pub instance_id: u16,
+    pub visible_px: u32,
+    pub amodal_px: u32,
+    /// The object's silhouette reaches the image border.
+    pub truncated: bool,
+}
+
+impl Visibility {
+    /// Fraction of the amodal area hidden by other objects (0 when not in view).
+    pub fn occlusion(&self) -> f32 {
+        if self.amodal_px == 0 {
+            0.0
+        } else {
+            1.0 - self.visible_px as f32 / self.amodal_px as f32
+        }
+    }
+    /// The benchmark's definition of "occluded": amodal area more than 5% above the visible area.
+    pub fn is_occluded(&self) -> bool {
+        self.amodal_px as f32 > 1.05 * self.visible_px as f32
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ObjectInfo {
+    pub instance_id: u16,
+    pub category: crate::shapes::Category,
+    pub structure: bool,
+    pub held_out: bool,
+}
+
+/// The `scene.json` of a rendered scene.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SceneInfo {
+    pub seed: u64,
+    pub config: SceneConfig,
+    pub objects: Vec<ObjectInfo>,
+    pub visibility: Vec<Visibility>,
+    pub ground_truth_points: usize,
+    pub ground_truth_seen: usize,
+}
+
+/// Everything rendered for one view.
+pub struct RenderedView {
+    pub camera: Camera,
+    /// Noise-free render (ground truth).
+    pub frame: Frame,
+    /// What the sensor reports (noisy if configured).
+    pub depth: DepthMap,
+    pub rgb: RgbImage,
+    /// (instance id, amodal mask over the full image) for objects in view.
+    pub amodal: Vec<(u16, Vec<bool>)>,
+    pub visibility: Vec<Visibility>,
+}
+
+pub fn render_view(scene: &Scene, tris: &SceneTriangles, config: &SceneConfig, view: usize) -> RenderedView {
+    let camera = scene.cameras[view];
+    let frame = render_scene(&camera, scene, tris);
+    let rgb = shade(&frame, &camera, scene, tris, [0, 0, 0]);
+    let mut sensor = frame.clone();
+    if config.sensor_noise {
+        add_sensor_noise(&mut sensor, &camera, tris, scene.seed.wrapping_mul(1000).wrapping_add(view as u64));
+    }
+    let (w, h) = (frame.width, frame.height);
+    let depth = DepthMap::new(w, h, sensor.depth_m).unwrap_or_else(|_| DepthMap::zeros(w, h));
+    let mut amodal = Vec::new();
+    let mut visibility = Vec::new();
+    for (k, obj) in scene.objects.iter().enumerate() {
+        let alone = render_object(&camera, scene, tris, k);
+        let mask: Vec<bool> = alone.instance.iter().map(|&i| i != 0).collect();
+        let amodal_px = mask.iter().filter(|&&m| m).count() as u32;
+        if amodal_px == 0 {
+            continue;
+        }
+        let visible_px = frame.instance.iter().filter(|&&i| i == obj.instance_id).count() as u32;
+        let truncated = (0..w as usize).any(|u| mask[u] || mask[(h as usize - 1) * w as usize + u])
+            || (0..h as usize).any(|v| mask[v * w as usize] || mask[v * w as usize + w as usize - 1]);
+        visibility.push(Visibility { view, instance_id: obj.instance_id, visible_px, amodal_px, truncated });
+        amodal.push((obj.instance_id, mask));
+    }
+    RenderedView { camera, frame, depth, rgb, amodal, visibility }
+}
+
+/// A scene with all its views rendered and its ground truth sampled.
+pub struct RenderedScene {
+    pub scene: Scene,
+    pub views: Vec<RenderedView>,
+    pub ground_truth: GroundTruth,
+}
+
+pub fn render_full_scene(config: &SceneConfig, seed: u64) -> Result<RenderedScene> {
+    let scene = generate_scene(config, seed)?;
+    let tris = SceneTriangles::new(&scene);
+    let views: Vec<RenderedView> = (0..scene.cameras.len())
+        .into_par_iter()
+        .map(|v| render_view(&scene, &tris, config, v))
+        .collect();
+    let cloud = sample_surfaces(&scene, &tris, config.gt_points_per_m2, seed);
+    let frames: Vec<Frame> = views.iter().map(|v| v.frame.clone()).collect();
+    let seen = seen_flags(&cloud, &scene.cameras, &frames);
+    Ok(RenderedScene { scene, views, ground_truth: GroundTruth { cloud, seen } })
+}
+
+fn frame_name(view: usize) -> String {
+    format!("{view:06}")
+}
+
+/// Writes a rendered scene into `dir` (created if needed).
+pub fn write_scene(dir: &Path, config: &SceneConfig, rendered: &RenderedScene) -> Result<SceneInfo> {
+    for sub in ["rgb", "depth", "instances", "amodal"] {
+        std::fs::create_dir_all(dir.join(sub)).map_err(|e| deocc_io::IoError::new(&dir.join(sub), e))?;
+    }
+    rendered.views.par_iter().enumerate().try_for_each(|(v, view)| -> Result<()> {
+        let name = frame_name(v);
+        write_rgb_png(&dir.join("rgb").join(format!("{name}.png")), &view.rgb)?;
+        write_depth_png(&dir.join("depth").join(format!("{name}.png")), &view.depth)?;
+        let inst = InstanceMap { width: view.frame.width, height: view.frame.height, ids: view.frame.instance.clone() };
+        write_instance_png(&dir.join("instances").join(format!("{name}.png")), &inst)?;
+        let adir = dir.join("amodal").join(&name);
+        std::fs::create_dir_all(&adir).map_err(|e| deocc_io::IoError::new(&adir, e))?;
+        for (id, mask) in &view.amodal {
+            write_mask_png(&adir.join(format!("{id:04}.png")), view.frame.width, view.frame.height, mask)?;
+        }
+        Ok(())
+    })?;
+    let frames: Vec<FrameCamera> = rendered
+        .views
+        .iter()
+        .enumerate()
+        .map(|(v, view)| FrameCamera { name: frame_name(v), intrinsics: view.camera.intrinsics, world_from_camera: Some(view.camera.world_from_camera) })
+        .collect();
+    write_cameras_json(&dir.join("cameras.json"), &frames)?;
+    let gt = &rendered.ground_truth;
+    let seen_u8: Vec<u8> = gt.seen.iter().map(|&s| s as u8).collect();
+    write_point_cloud_with_extras(&dir.join("ground_truth.ply"), &gt.cloud, &[("seen", &seen_u8)], PlyEncoding::BinaryLittleEndian)?;
+    let info = SceneInfo {
+        seed: rendered.scene.seed,
+        config: config.clone(),
+        objects: rendered
+            .scene
+            .objects
+            .iter()
+            .map(|o| ObjectInfo { instance_id: o.instance_id, category: o.category, structure: o.category.is_structure(), held_out: o.category.is_held_out() })
+            .collect(),
+        visibility: rendered.views.iter().flat_map(|v| v.visibility.clone()).collect(),
+        ground_truth_points: gt.cloud.len(),
+        ground_truth_seen: gt.seen.iter().filter(|&&s| s).count(),
+    };
+    write_json(&dir.join("scene.json"), &info)?;
+    Ok(info)
+}
+
+/// A named set of scenes: the config and the seeds.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Preset {
+    pub name: String,
+    pub config: SceneConfig,
+    pub seeds: Vec<u64>,
+}
+
+/// `bench-v1`: 50 test scenes of 10 robot-head views each at 640x480, held-out shapes allowed,
+/// seeds 9_000_000..9_000_050. Fixed forever: results across commits are comparable.
+pub fn bench_v1() -> Preset {
+    Preset {
+        name: "bench-v1".into(),
+        config: SceneConfig { views: 10, camera_path: CameraPath::RobotHead, held_out_shapes: true, ..SceneConfig::default() },
+        seeds: (9_000_000..9_000_050).collect(),
+    }
+}
+
+/// Named presets known to `deocc synth scenes --preset`.
+pub fn preset(name: &str) -> Result<Preset> {
+    match name {
+        "bench-v1" => Ok(bench_v1()),
+        "bench-v1-small" => {
+            // The first 5 scenes of bench-v1 at 320x240: for tests and quick looks.
+            let mut p = bench_v1();
+            p.name = "bench-v1-small".into();
+            p.config.width = 320;
+            p.config.height = 240;
+            p.config.gt_points_per_m2 = 4000.0;
+            p.seeds.truncate(5);
+            Ok(p)
+        }
+        other => Err(SynthError::Config(format!("unknown preset '{other}' (known: bench-v1, bench-v1-small)"))),
+    }
+}
+
+/// Statistics of a set of scenes, written beside them as `stats.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SetStats {
+    pub scenes: usize,
+    pub views: usize,
+    pub objects_per_scene_mean: f64,
+    /// Object-view pairs (non-structure, in view, not truncated) per occlusion level.
+    pub unoccluded: usize,
+    /// 10-40% hidden.
+    pub light: usize,
+    /// Over 40% hidden.
+    pub heavy: usize,
+    /// Occlusion-ratio histogram in 10 bins of 0.1.
+    pub occlusion_histogram: [usize; 10],
+}
+
+pub fn set_stats(infos: &[SceneInfo]) -> SetStats {
+    let mut hist = [0usize; 10];
+    let (mut un, mut light, mut heavy) = (0, 0, 0);
+    let mut objects = 0usize;
+    let mut views = 0usize;
+    for info in infos {
+        objects += info.objects.iter().filter(|o| !o.structure).count();
+        views += info.config.views;
+        for v in &info.visibility {
+            let structure = info.objects.iter().any(|o| o.instance_id == v.instance_id && o.structure);
+            if structure || v.truncated {
+                continue;
+            }
+            let occ = v.occlusion();
+            hist[((occ * 10.0) as usize).min(9)] += 1;
+            match occ {
+                o if o < 0.1 => un += 1,
+                o if o <= 0.4 => light += 1,
+                _ => heavy += 1,
+            }
+        }
+    }
+    SetStats {
+        scenes: infos.len(),
+        views,
+        objects_per_scene_mean: objects as f64 / infos.len().max(1) as f64,
+        unoccluded: un,
+        light,
+        heavy,
+        occlusion_histogram: hist,
+    }
+}
+
+/// The directory of scene `i` of a set.
+pub fn scene_dir(root: &Path, i: usize) -> PathBuf {
+    root.join(format!("scene_{i:06}"))
+}

@@ -1,0 +1,327 @@
+//! Procedural indoor scenes: a room corner, a table with things on it, chairs (some pushed under
+//! the table), an optional shelf with things on it, and a camera path. Everything random comes
+//! from one ChaCha8 generator seeded by the scene's seed, so a config and a seed fix the scene.
+
+use std::path::PathBuf;
+
+use deocc_geometry::camera::{look_at, Camera, Intrinsics};
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::mesh::{cuboid, TriMesh};
+use crate::shapes::{self, Category};
+use crate::SynthError;
+
+/// How the cameras move.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CameraPath {
+    /// A robot head 1.0-1.6 m high, looking at the table from a 90 degree arc.
+    RobotHead,
+    /// A wider arc (150 degrees) around the table.
+    Arc,
+    /// One view.
+    Single,
+}
+
+/// A user mesh to place on the table as an object.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct UserMesh {
+    pub path: PathBuf,
+    /// Largest extent after scaling, metres.
+    pub size_m: f32,
+}
+
+/// Everything that shapes a scene except its seed.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SceneConfig {
+    pub width: u32,
+    pub height: u32,
+    pub hfov_deg: f32,
+    pub views: usize,
+    pub camera_path: CameraPath,
+    pub tabletop_objects_min: usize,
+    pub tabletop_objects_max: usize,
+    pub chairs_max: usize,
+    /// Probability of a shelf with objects against the back wall.
+    pub shelf_probability: f64,
+    /// Allow the held-out shapes (vase, L-bracket): true for test scenes only.
+    pub held_out_shapes: bool,
+    /// Ground-truth surface samples per square metre.
+    pub gt_points_per_m2: f32,
+    /// Add depth noise and drop depth at grazing angles, like a structured-light sensor.
+    pub sensor_noise: bool,
+    pub user_meshes: Vec<UserMesh>,
+}
+
+impl Default for SceneConfig {
+    fn default() -> Self {
+        Self {
+            width: 640,
+            height: 480,
+            hfov_deg: 60.0,
+            views: 10,
+            camera_path: CameraPath::RobotHead,
+            tabletop_objects_min: 4,
+            tabletop_objects_max: 8,
+            chairs_max: 3,
+            shelf_probability: 0.4,
+            held_out_shapes: false,
+            gt_points_per_m2: 10_000.0,
+            sensor_noise: false,
+            user_meshes: Vec::new(),
+        }
+    }
+}
+
+/// Surface pattern of an object's albedo.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Texture {
+    Solid,
+    Stripes { period_m: f32, axis: u8 },
+    Checker { period_m: f32 },
+    Noise { period_m: f32 },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Appearance {
+    pub color_a: [u8; 3],
+    pub color_b: [u8; 3],
+    pub texture: Texture,
+}
+
+/// One object of a scene, its mesh already in the world frame.
+#[derive(Debug, Clone)]
+pub struct SceneObject {
+    /// 1-based; 0 is "no object" in instance maps.
+    pub instance_id: u16,
+    pub category: Category,
+    pub mesh: TriMesh,
+    pub appearance: Appearance,
+}
+
+#[derive(Debug, Clone)]
+pub struct Scene {
+    pub seed: u64,
+    pub objects: Vec<SceneObject>,
+    pub cameras: Vec<Camera>,
+    /// Centre of the table top, what the cameras look at.
+    pub focus: Point3<f32>,
+}
+
+/// A palette shared by all objects, so colour alone does not separate instances.
+const PALETTE: [[u8; 3]; 14] = [
+    [200, 60, 50],
+    [60, 120, 200],
+    [230, 190, 60],
+    [90, 160, 80],
+    [160, 110, 70],
+    [220, 220, 215],
+    [70, 70, 75],
+    [150, 80, 160],
+    [240, 140, 60],
+    [120, 180, 190],
+    [190, 170, 140],
+    [110, 40, 40],
+    [180, 200, 120],
+    [100, 100, 160],
+];
+
+fn appearance(r: &mut impl Rng) -> Appearance {
+    let color_a = PALETTE[r.random_range(0..PALETTE.len())];
+    let color_b = PALETTE[r.random_range(0..PALETTE.len())];
+    let texture = match r.random_range(0..4) {
+        0 => Texture::Solid,
+        1 => Texture::Stripes { period_m: r.random_range(0.01..0.05), axis: r.random_range(0..3) },
+        2 => Texture::Checker { period_m: r.random_range(0.02..0.08) },
+        _ => Texture::Noise { period_m: r.random_range(0.02..0.1) },
+    };
+    Appearance { color_a, color_b, texture }
+}
+
+fn place(mesh: TriMesh, x: f32, y: f32, z: f32, yaw: f32) -> TriMesh {
+    mesh.transformed(&Isometry3::from_parts(
+        nalgebra::Translation3::new(x, y, z),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+    ))
+}
+
+/// Rejection sampling of non-overlapping discs in a rectangle; `None` when it does not fit.
+fn find_spot(
+    r: &mut impl Rng,
+    half: (f32, f32),
+    center: (f32, f32),
+    radius: f32,
+    taken: &[(f32, f32, f32)],
+) -> Option<(f32, f32)> {
+    if radius >= half.0 || radius >= half.1 {
+        return None;
+    }
+    for _ in 0..60 {
+        let x = center.0 + r.random_range(-(half.0 - radius)..(half.0 - radius));
+        let y = center.1 + r.random_range(-(half.1 - radius)..(half.1 - radius));
+        if taken.iter().all(|&(tx, ty, tr)| (tx - x).hypot(ty - y) > tr + radius + 0.005) {
+            return Some((x, y));
+        }
+    }
+    None
+}
+
+/// Room half-size: the floor spans [-ROOM, ROOM]^2; walls stand at x = ROOM and y = ROOM.
+const ROOM: f32 = 2.5;
+
+pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
+    let mut r = ChaCha8Rng::seed_from_u64(seed);
+    let mut objects = Vec::new();
+    let add = |objects: &mut Vec<SceneObject>, category, mesh, app| {
+        let instance_id = objects.len() as u16 + 1;
+        objects.push(SceneObject { instance_id, category, mesh, appearance: app });
+    };
+    let floor_app = Appearance { color_a: [150, 140, 130], color_b: [120, 110, 100], texture: Texture::Checker { period_m: 0.3 } };
+    add(&mut objects, Category::Floor, cuboid(Point3::new(-ROOM, -ROOM, -0.02), Point3::new(ROOM, ROOM, 0.0)), floor_app);
+    let wall_app = Appearance { color_a: [215, 210, 200], color_b: [200, 195, 185], texture: Texture::Noise { period_m: 0.5 } };
+    add(&mut objects, Category::Wall, cuboid(Point3::new(ROOM, -ROOM, 0.0), Point3::new(ROOM + 0.05, ROOM, 2.5)), wall_app);
+    add(&mut objects, Category::Wall, cuboid(Point3::new(-ROOM, ROOM, 0.0), Point3::new(ROOM, ROOM + 0.05, 2.5)), wall_app);
+
+    // The table, near the room centre, rotated a little.
+    let (table, size) = shapes::table(&mut r);
+    let (tx, ty) = (r.random_range(-0.3..0.3), r.random_range(-0.3..0.3));
+    let table_yaw = r.random_range(-0.3..0.3f32);
+    let app = appearance(&mut r);
+    add(&mut objects, Category::Table, place(table.mesh, tx, ty, 0.0, table_yaw), app);
+    let to_world = |x: f32, y: f32| {
+        let (c, s) = (table_yaw.cos(), table_yaw.sin());
+        (tx + c * x - s * y, ty + s * x + c * y)
+    };
+
+    // Chairs along the long sides, some pushed under the table.
+    let n_chairs = r.random_range(0..=config.chairs_max);
+    for k in 0..n_chairs {
+        let chair = shapes::chair(&mut r);
+        let side = if k % 2 == 0 { -1.0 } else { 1.0 };
+        let along = r.random_range(-size.x * 0.3..size.x * 0.3);
+        let pushed_in = r.random_bool(0.5);
+        let off = size.y / 2.0 + if pushed_in { -0.05 } else { r.random_range(0.15..0.35) };
+        let (x, y) = to_world(along, side * off);
+        // Chair back away from the table: the chair faces -y in its frame.
+        let yaw = table_yaw + if side < 0.0 { 0.0 } else { std::f32::consts::PI } + r.random_range(-0.2..0.2);
+        let app = appearance(&mut r);
+        add(&mut objects, Category::Chair, place(chair.mesh, x, y, 0.0, yaw), app);
+    }
+
+    // Things on the table.
+    let pool: Vec<Category> = if config.held_out_shapes {
+        Category::TABLETOP_TRAIN.iter().chain(&Category::TABLETOP_HELD_OUT).copied().collect()
+    } else {
+        Category::TABLETOP_TRAIN.to_vec()
+    };
+    let user_meshes = load_user_meshes(config)?;
+    let n_objects = r.random_range(config.tabletop_objects_min..=config.tabletop_objects_max.max(config.tabletop_objects_min));
+    let mut taken = Vec::new();
+    let half = (size.x / 2.0 - 0.03, size.y / 2.0 - 0.03);
+    for k in 0..n_objects + user_meshes.len() {
+        let (category, shape) = if k >= n_objects {
+            let m = &user_meshes[k - n_objects];
+            (Category::UserMesh, shapes::Shape { mesh: m.0.clone(), footprint_radius: m.1, height: m.2 })
+        } else {
+            // Held-out shapes appear with a boosted rate in test scenes so their figures mean something.
+            let c = if config.held_out_shapes && r.random_bool(0.25) {
+                Category::TABLETOP_HELD_OUT[r.random_range(0..2)]
+            } else {
+                pool[r.random_range(0..pool.len())]
+            };
+            (c, shapes::tabletop(c, &mut r))
+        };
+        let Some((x, y)) = find_spot(&mut r, half, (0.0, 0.0), shape.footprint_radius, &taken) else {
+            continue;
+        };
+        taken.push((x, y, shape.footprint_radius));
+        let (wx, wy) = to_world(x, y);
+        let yaw = r.random_range(0.0..std::f32::consts::TAU);
+        let app = appearance(&mut r);
+        add(&mut objects, category, place(shape.mesh, wx, wy, size.z, yaw), app);
+    }
+
+    // A shelf against the back wall (y = ROOM), with things on its boards.
+    if r.random_bool(config.shelf_probability) {
+        let (shelf, ssize, tops) = shapes::shelf(&mut r);
+        let sx = r.random_range(-1.2..1.2f32);
+        let sy = ROOM - ssize.y / 2.0 - 0.01;
+        let app = appearance(&mut r);
+        add(&mut objects, Category::Shelf, place(shelf.mesh, sx, sy, 0.0, 0.0), app);
+        for &z in &tops[..tops.len() - 1] {
+            let mut taken = Vec::new();
+            for _ in 0..r.random_range(1..4) {
+                let c = pool[r.random_range(0..pool.len())];
+                let shape = shapes::tabletop(c, &mut r);
+                let board_gap = (tops[1] - tops[0]) - 0.03;
+                if shape.height > board_gap {
+                    continue;
+                }
+                let half = (ssize.x / 2.0 - 0.03, ssize.y / 2.0 - 0.03);
+                let Some((x, y)) = find_spot(&mut r, half, (0.0, 0.0), shape.footprint_radius, &taken) else {
+                    continue;
+                };
+                taken.push((x, y, shape.footprint_radius));
+                let yaw = r.random_range(0.0..std::f32::consts::TAU);
+                let app = appearance(&mut r);
+                add(&mut objects, c, place(shape.mesh, sx + x, sy + y, z, yaw), app);
+            }
+        }
+    }
+
+    let focus = Point3::new(tx, ty, size.z);
+    let cameras = camera_path(config, &mut r, &focus)?;
+    Ok(Scene { seed, objects, cameras, focus })
+}
+
+fn load_user_meshes(config: &SceneConfig) -> Result<Vec<(TriMesh, f32, f32)>, SynthError> {
+    config
+        .user_meshes
+        .iter()
+        .map(|u| {
+            let m = deocc_io::mesh::read_mesh(&u.path)?;
+            let mesh = TriMesh { vertices: m.vertices.positions, triangles: m.triangles };
+            let (lo, hi) = mesh.bounds().ok_or_else(|| SynthError::Config(format!("{}: empty mesh", u.path.display())))?;
+            let extent = (hi - lo).max();
+            if extent <= 0.0 || !(u.size_m > 0.0) {
+                return Err(SynthError::Config(format!("{}: degenerate mesh or size", u.path.display())));
+            }
+            let s = u.size_m / extent;
+            let c = nalgebra::center(&lo, &hi);
+            let mesh = mesh
+                .translated(Vector3::new(-c.x, -c.y, -lo.z))
+                .scaled(Vector3::repeat(s));
+            let radius = ((hi.x - lo.x).hypot(hi.y - lo.y)) * s / 2.0;
+            Ok((mesh, radius, (hi.z - lo.z) * s))
+        })
+        .collect()
+}
+
+fn camera_path(config: &SceneConfig, r: &mut impl Rng, focus: &Point3<f32>) -> Result<Vec<Camera>, SynthError> {
+    let intrinsics = Intrinsics::from_fov(config.width, config.height, config.hfov_deg)?;
+    // Cameras stay on the open side of the room (walls at +x and +y).
+    let center_az = r.random_range(200f32..250.0).to_radians();
+    let (span, n) = match config.camera_path {
+        CameraPath::RobotHead => (90f32.to_radians(), config.views),
+        CameraPath::Arc => (150f32.to_radians(), config.views),
+        CameraPath::Single => (0.0, 1),
+    };
+    let n = n.max(1);
+    let dist = r.random_range(1.3..1.9f32);
+    let height = r.random_range(1.0..1.6f32);
+    (0..n)
+        .map(|i| {
+            let t = if n == 1 { 0.5 } else { i as f32 / (n - 1) as f32 };
+            let az = center_az + span * (t - 0.5);
+            let d = dist + r.random_range(-0.1..0.1);
+            let eye = Point3::new(focus.x + d * az.cos(), focus.y + d * az.sin(), height + r.random_range(-0.05..0.05));
+            let target = focus + Vector3::new(r.random_range(-0.1..0.1), r.random_range(-0.1..0.1), r.random_range(-0.1..0.05));
+            Ok(Camera { intrinsics, world_from_camera: look_at(&eye, &target, &Vector3::z())? })
+        })
+        .collect()
+}
