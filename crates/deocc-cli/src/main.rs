@@ -8,12 +8,17 @@ use clap::{Parser, Subcommand};
 mod bench;
 mod progress;
 mod synth;
+mod train;
 
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 #[derive(Parser)]
-#[command(name = "deocc", version, about = "Fast generative scene de-occlusion for vision and robotics")]
+#[command(
+    name = "deocc",
+    version,
+    about = "Fast generative scene de-occlusion for vision and robotics"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -24,6 +29,8 @@ enum Command {
     /// Make synthetic scenes, training pairs and contact sheets.
     #[command(subcommand)]
     Synth(synth::SynthCommand),
+    /// Train GL-DoT (starts or resumes a run directory).
+    Train(train::TrainArgs),
     /// Measure speed against a peer and write a report.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -31,13 +38,17 @@ enum Command {
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("DEOCC_LOG").unwrap_or_else(|_| "warn".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("DEOCC_LOG")
+                .unwrap_or_else(|_| "warn".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Synth(c) => synth::run(c),
         Command::Bench(c) => bench::run(c),
+        Command::Train(a) => train::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

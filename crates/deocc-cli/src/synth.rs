@@ -4,7 +4,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
-use deocc_synth::dataset::{preset, render_full_scene, scene_dir, set_stats, write_scene, Preset, SceneInfo};
+use deocc_synth::dataset::{
+    preset, render_full_scene, scene_dir, set_stats, write_scene, Preset, SceneInfo,
+};
 use deocc_synth::pairs::{save_pairs, split_scene_pairs, PairConfig, PairSet, Split};
 use deocc_synth::scene::{CameraPath, SceneConfig, UserMesh};
 use rayon::prelude::*;
@@ -60,12 +62,19 @@ impl SceneOptions {
             .meshes
             .iter()
             .map(|m| {
-                let (path, size) = m.rsplit_once('=').context("--mesh takes PATH=SIZE_M, e.g. bunny.ply=0.15")?;
-                let size_m: f32 = size.parse().with_context(|| format!("--mesh {m}: '{size}' is not a size in metres"))?;
+                let (path, size) = m
+                    .rsplit_once('=')
+                    .context("--mesh takes PATH=SIZE_M, e.g. bunny.ply=0.15")?;
+                let size_m: f32 = size
+                    .parse()
+                    .with_context(|| format!("--mesh {m}: '{size}' is not a size in metres"))?;
                 if !(size_m > 0.0 && size_m < 2.0) {
                     bail!("--mesh {m}: size must be in (0, 2) metres");
                 }
-                Ok(UserMesh { path: PathBuf::from(path), size_m })
+                Ok(UserMesh {
+                    path: PathBuf::from(path),
+                    size_m,
+                })
             })
             .collect::<Result<_>>()?;
         if self.views == 0 || self.width < 16 || self.height < 16 {
@@ -164,13 +173,18 @@ struct Manifest<'a> {
 }
 
 fn create_dir(dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the output folder", dir.display()))
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: cannot create the output folder", dir.display()))
 }
 
 fn scenes(a: ScenesArgs) -> Result<()> {
     let p = match &a.preset {
         Some(name) => preset(name)?,
-        None => Preset { name: "custom".into(), config: a.options.config()?, seeds: (a.seed..a.seed + a.count as u64).collect() },
+        None => Preset {
+            name: "custom".into(),
+            config: a.options.config()?,
+            seeds: (a.seed..a.seed + a.count as u64).collect(),
+        },
     };
     create_dir(&a.out)?;
     let pb = bar(p.seeds.len() as u64, "scenes");
@@ -186,7 +200,10 @@ fn scenes(a: ScenesArgs) -> Result<()> {
         })
         .collect::<Result<_>>()?;
     pb.finish_and_clear();
-    let manifest = Manifest { preset: &p, scenes: (0..infos.len()).map(|i| format!("scene_{i:06}")).collect() };
+    let manifest = Manifest {
+        preset: &p,
+        scenes: (0..infos.len()).map(|i| format!("scene_{i:06}")).collect(),
+    };
     deocc_io::cameras::write_json(&a.out.join("manifest.json"), &manifest)?;
     let stats = set_stats(&infos);
     deocc_io::cameras::write_json(&a.out.join("stats.json"), &stats)?;
@@ -213,7 +230,10 @@ fn pairs(a: PairsArgs) -> Result<()> {
         bail!("--scenes-per-shard must be positive and --resolution at least 8");
     }
     create_dir(&a.out)?;
-    let config = PairConfig { resolution: a.resolution, ..PairConfig::default() };
+    let config = PairConfig {
+        resolution: a.resolution,
+        ..PairConfig::default()
+    };
     let name = format!("{split:?}").to_lowercase();
     let pb = bar(a.scenes, "pairs");
     let mut shards = Vec::new();
@@ -229,7 +249,10 @@ fn pairs(a: PairsArgs) -> Result<()> {
                 s
             })
             .collect::<Result<_, _>>()?;
-        let mut set = PairSet { resolution: a.resolution, ..Default::default() };
+        let mut set = PairSet {
+            resolution: a.resolution,
+            ..Default::default()
+        };
         for p in &parts {
             set.extend(p);
         }
@@ -250,9 +273,19 @@ fn pairs(a: PairsArgs) -> Result<()> {
     }
     deocc_io::cameras::write_json(
         &a.out.join(format!("{name}-manifest.json")),
-        &PairsManifest { split, config, scenes: a.start..a.start + a.scenes, pairs: total, shards },
+        &PairsManifest {
+            split,
+            config,
+            scenes: a.start..a.start + a.scenes,
+            pairs: total,
+            shards,
+        },
     )?;
-    println!("wrote {total} {name} pairs from {} scenes to {}", a.scenes, a.out.display());
+    println!(
+        "wrote {total} {name} pairs from {} scenes to {}",
+        a.scenes,
+        a.out.display()
+    );
     Ok(())
 }
 

@@ -214,9 +214,7 @@ pub fn icp(
     options: &IcpOptions,
 ) -> Result<IcpResult> {
     if source.is_empty() {
-        return Err(GeometryError::Empty {
-            what: "ICP source",
-        });
+        return Err(GeometryError::Empty { what: "ICP source" });
     }
     if options.method == IcpMethod::PointToPlane && target.normals.is_none() {
         return Err(GeometryError::InvalidArgument(
@@ -253,7 +251,10 @@ pub fn icp(
                         }
                         IcpMethod::PointToPlane => {
                             // Linearised about the current pose: r = n.(s + w x s + v - t).
-                            let n = target.normals.map(|n| n[nb.index as usize]).unwrap_or_default();
+                            let n = target
+                                .normals
+                                .map(|n| n[nb.index as usize])
+                                .unwrap_or_default();
                             let n = n.cast::<f64>();
                             let c = s.cross(&n);
                             let a = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);

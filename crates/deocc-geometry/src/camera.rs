@@ -156,7 +156,9 @@ impl Camera {
     /// World point -> continuous pixel and depth along the optical axis.
     pub fn project_world(&self, p_world: &Point3<f32>) -> Option<(Point2<f32>, f32)> {
         let p_camera = self.world_from_camera.inverse_transform_point(p_world);
-        self.intrinsics.project(&p_camera).map(|px| (px, p_camera.z))
+        self.intrinsics
+            .project(&p_camera)
+            .map(|px| (px, p_camera.z))
     }
 
     /// The world point seen at pixel centre (u, v) (integer pixel indices) at depth `depth_m`.
@@ -195,9 +197,8 @@ pub fn look_at(
     }
     let x = x.normalize();
     let y = z.cross(&x);
-    let rotation = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[
-        x, y, z,
-    ]));
+    let rotation =
+        nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[x, y, z]));
     Ok(Isometry3::from_parts(
         nalgebra::Translation3::from(eye.coords),
         nalgebra::UnitQuaternion::from_rotation_matrix(&rotation),

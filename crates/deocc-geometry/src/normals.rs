@@ -48,7 +48,11 @@ pub fn estimate_normals_with_index(
 }
 
 /// Flips each normal so that it points towards `viewpoint`.
-pub fn orient_towards(points: &[Point3<f32>], normals: &mut [Vector3<f32>], viewpoint: &Point3<f32>) {
+pub fn orient_towards(
+    points: &[Point3<f32>],
+    normals: &mut [Vector3<f32>],
+    viewpoint: &Point3<f32>,
+) {
     for (p, n) in points.iter().zip(normals.iter_mut()) {
         if n.dot(&(viewpoint - p)) < 0.0 {
             *n = -*n;
@@ -70,8 +74,8 @@ pub fn smallest_eigenvector(a: &Matrix3<f64>) -> Vector3<f64> {
     let lambda_min = if p1 <= 1e-20 {
         a[(0, 0)].min(a[(1, 1)]).min(a[(2, 2)])
     } else {
-        let p2 = (a[(0, 0)] - q).powi(2) + (a[(1, 1)] - q).powi(2) + (a[(2, 2)] - q).powi(2)
-            + 2.0 * p1;
+        let p2 =
+            (a[(0, 0)] - q).powi(2) + (a[(1, 1)] - q).powi(2) + (a[(2, 2)] - q).powi(2) + 2.0 * p1;
         let p = (p2 / 6.0).sqrt();
         let b = (a - Matrix3::identity() * q) / p;
         let r = (b.determinant() / 2.0).clamp(-1.0, 1.0);

@@ -54,8 +54,7 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f32) -> Result<PointCloud> 
         }
     }
     starts.push(keyed.len());
-    let groups: Vec<&[([i32; 3], u32)]> =
-        starts.windows(2).map(|w| &keyed[w[0]..w[1]]).collect();
+    let groups: Vec<&[([i32; 3], u32)]> = starts.windows(2).map(|w| &keyed[w[0]..w[1]]).collect();
 
     let positions = groups
         .par_iter()
@@ -128,7 +127,11 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f32) -> Result<PointCloud> 
 /// Adds `generated` points to `observed` without duplicating surfaces: generated points are
 /// voxel-downsampled, and any that falls into a voxel already holding an observed point is dropped
 /// (the sensor wins). Observed points are kept as they are; the result carries the generated flag.
-pub fn fuse_generated(observed: &PointCloud, generated: &PointCloud, voxel_m: f32) -> Result<PointCloud> {
+pub fn fuse_generated(
+    observed: &PointCloud,
+    generated: &PointCloud,
+    voxel_m: f32,
+) -> Result<PointCloud> {
     let inv = check_voxel(voxel_m)?;
     let mut out = observed.clone();
     if out.generated.is_none() {

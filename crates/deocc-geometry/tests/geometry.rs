@@ -9,9 +9,7 @@ use deocc_geometry::normals::{estimate_normals, smallest_eigenvector};
 use deocc_geometry::robust::{huber_affine_fit, least_squares_affine_fit, HuberOptions};
 use deocc_geometry::voxel::{fuse_generated, voxel_downsample};
 use deocc_geometry::{GeometryError, KdIndex};
-use nalgebra::{
-    Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
-};
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use rand::Rng;
 
@@ -26,7 +24,10 @@ fn nearest_neighbours_match_brute_force() {
             .iter()
             .map(|p| (p - q).norm_squared())
             .fold(f32::INFINITY, f32::min);
-        assert!((got.distance_sq - best).abs() <= 1e-6 * best.max(1e-6), "{got:?} vs {best}");
+        assert!(
+            (got.distance_sq - best).abs() <= 1e-6 * best.max(1e-6),
+            "{got:?} vs {best}"
+        );
         assert!(((data[got.index as usize] - q).norm_squared() - best).abs() < 1e-5);
     }
     // k nearest: the same set of distances as sorting all.
@@ -46,7 +47,10 @@ fn nearest_neighbours_match_brute_force() {
 
 #[test]
 fn kd_tree_rejects_empty_and_non_finite() {
-    assert!(matches!(KdIndex::build(&[]), Err(GeometryError::Empty { .. })));
+    assert!(matches!(
+        KdIndex::build(&[]),
+        Err(GeometryError::Empty { .. })
+    ));
     let bad = vec![Point3::new(0.0, f32::NAN, 0.0)];
     assert!(matches!(
         KdIndex::build(&bad),
@@ -61,7 +65,10 @@ fn random_rotation(r: &mut impl Rng, max_angle: f64) -> Rotation3<f64> {
         r.random_range(-1.0..1.0),
     )
     .normalize();
-    Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), r.random_range(-max_angle..max_angle))
+    Rotation3::from_axis_angle(
+        &nalgebra::Unit::new_normalize(axis),
+        r.random_range(-max_angle..max_angle),
+    )
 }
 
 #[test]
@@ -69,12 +76,25 @@ fn umeyama_recovers_known_similarity() {
     let mut r = common::rng(7);
     for trial in 0..20 {
         let src: Vec<Point3<f64>> = (0..200)
-            .map(|_| Point3::new(r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), r.random_range(-1.0..1.0)))
+            .map(|_| {
+                Point3::new(
+                    r.random_range(-1.0..1.0),
+                    r.random_range(-1.0..1.0),
+                    r.random_range(-1.0..1.0),
+                )
+            })
             .collect();
         let rotation = random_rotation(&mut r, std::f64::consts::PI);
         let scale = r.random_range(0.5..2.0);
-        let t = Vector3::new(r.random_range(-3.0..3.0), r.random_range(-3.0..3.0), r.random_range(-3.0..3.0));
-        let dst: Vec<Point3<f64>> = src.iter().map(|p| Point3::from(scale * (rotation * p.coords) + t)).collect();
+        let t = Vector3::new(
+            r.random_range(-3.0..3.0),
+            r.random_range(-3.0..3.0),
+            r.random_range(-3.0..3.0),
+        );
+        let dst: Vec<Point3<f64>> = src
+            .iter()
+            .map(|p| Point3::from(scale * (rotation * p.coords) + t))
+            .collect();
         let sim = umeyama(&src, &dst, true).unwrap();
         assert!((sim.scale - scale).abs() < 1e-6, "trial {trial}");
         assert!((sim.rotation.matrix() - rotation.matrix()).abs().max() < 1e-6);
@@ -86,7 +106,10 @@ fn umeyama_recovers_known_similarity() {
 #[test]
 fn umeyama_never_returns_a_reflection() {
     // Points mirrored in x: the best proper rotation, not the reflection.
-    let src: Vec<Point3<f64>> = common::random_points(100, 3, 1.0).iter().map(|p| p.cast()).collect();
+    let src: Vec<Point3<f64>> = common::random_points(100, 3, 1.0)
+        .iter()
+        .map(|p| p.cast())
+        .collect();
     let dst: Vec<Point3<f64>> = src.iter().map(|p| Point3::new(-p.x, p.y, p.z)).collect();
     let sim = umeyama(&src, &dst, true).unwrap();
     assert!((sim.rotation.matrix().determinant() - 1.0).abs() < 1e-9);
@@ -126,7 +149,10 @@ fn icp_converges_from_10_degrees_and_5_cm() {
         let err = res.target_from_source.inverse() * expected;
         let angle = err.rotation.angle().to_degrees();
         let dist = err.translation.vector.norm();
-        assert!(angle < 0.5 && dist < 0.005, "{method:?}: residual {angle} deg, {dist} m");
+        assert!(
+            angle < 0.5 && dist < 0.005,
+            "{method:?}: residual {angle} deg, {dist} m"
+        );
         assert!(res.fitness > 0.99, "{method:?}: fitness {}", res.fitness);
     }
 }
@@ -147,7 +173,10 @@ fn point_to_plane_converges_in_fewer_iterations() {
 fn icp_rejects_missing_normals_for_point_to_plane() {
     let pts = common::random_points(100, 5, 1.0);
     let tgt = IcpTarget::new(&pts, None).unwrap();
-    let opts = IcpOptions { method: IcpMethod::PointToPlane, ..Default::default() };
+    let opts = IcpOptions {
+        method: IcpMethod::PointToPlane,
+        ..Default::default()
+    };
     assert!(icp(&pts, &tgt, &Isometry3::identity(), &opts).is_err());
 }
 
@@ -169,7 +198,11 @@ fn huber_fit_survives_30_percent_gross_outliers() {
         y.push(yi as f32);
     }
     let fit = huber_affine_fit(&x, &y, &HuberOptions::default()).unwrap();
-    assert!((fit.alpha - alpha).abs() / alpha < 0.01, "alpha {}", fit.alpha);
+    assert!(
+        (fit.alpha - alpha).abs() / alpha < 0.01,
+        "alpha {}",
+        fit.alpha
+    );
     assert!((fit.beta - beta).abs() / beta < 0.01, "beta {}", fit.beta);
     assert!(fit.inlier_fraction > 0.6 && fit.inlier_fraction < 0.8);
     let (la, lb) = least_squares_affine_fit(&x, &y).unwrap();
@@ -184,7 +217,9 @@ fn huber_fit_rejects_bad_samples() {
     assert!(huber_affine_fit(&[1.0], &[1.0], &HuberOptions::default()).is_err());
     assert!(huber_affine_fit(&[1.0, 2.0], &[1.0], &HuberOptions::default()).is_err());
     assert!(huber_affine_fit(&[1.0, f32::NAN], &[1.0, 2.0], &HuberOptions::default()).is_err());
-    assert!(huber_affine_fit(&[1.0, 1.0, 1.0], &[1.0, 2.0, 3.0], &HuberOptions::default()).is_err());
+    assert!(
+        huber_affine_fit(&[1.0, 1.0, 1.0], &[1.0, 2.0, 3.0], &HuberOptions::default()).is_err()
+    );
 }
 
 #[test]
@@ -232,8 +267,16 @@ proptest! {
 #[test]
 fn depth_backprojection_and_rendering_agree() {
     let k = Intrinsics::new(100.0, 100.0, 32.0, 24.0, 64, 48).unwrap();
-    let pose = look_at(&Point3::new(0.0, -1.0, 1.0), &Point3::origin(), &Vector3::z()).unwrap();
-    let cam = Camera { intrinsics: k, world_from_camera: pose };
+    let pose = look_at(
+        &Point3::new(0.0, -1.0, 1.0),
+        &Point3::origin(),
+        &Vector3::z(),
+    )
+    .unwrap();
+    let cam = Camera {
+        intrinsics: k,
+        world_from_camera: pose,
+    };
     let mut depth = DepthMap::zeros(64, 48);
     for v in 0..48 {
         for u in 0..64 {
@@ -247,7 +290,11 @@ fn depth_backprojection_and_rendering_agree() {
     assert_eq!(pixels.len(), cloud.len());
     let rendered = render_depth(&cloud.positions, &cam, 0);
     for (i, &d) in depth.data().iter().enumerate() {
-        assert!((rendered.data()[i] - d).abs() < 1e-4, "pixel {i}: {} vs {d}", rendered.data()[i]);
+        assert!(
+            (rendered.data()[i] - d).abs() < 1e-4,
+            "pixel {i}: {} vs {d}",
+            rendered.data()[i]
+        );
     }
     // Wrong size is an error, not a panic.
     let small = DepthMap::zeros(10, 10);
@@ -266,8 +313,12 @@ fn depth_map_rejects_nan_and_wrong_size() {
 fn metrics_of_a_shifted_copy() {
     let gt = common::random_points(20_000, 31, 1.0);
     let shift = 0.01f32;
-    let pred: Vec<Point3<f32>> = gt.iter().map(|p| p + Vector3::new(0.0, 0.0, shift)).collect();
-    let m = reconstruction_metrics(&pred, None, &gt, None, None, &MetricOptions::default()).unwrap();
+    let pred: Vec<Point3<f32>> = gt
+        .iter()
+        .map(|p| p + Vector3::new(0.0, 0.0, shift))
+        .collect();
+    let m =
+        reconstruction_metrics(&pred, None, &gt, None, None, &MetricOptions::default()).unwrap();
     // Every point's nearest is at most `shift` away; on a dense cloud it is close to shift.
     assert!(m.accuracy_mean <= shift as f64 + 1e-6 && m.accuracy_mean > 0.5 * shift as f64);
     assert!((m.chamfer - (m.accuracy_mean + m.completeness_mean) / 2.0).abs() < 1e-12);
@@ -307,8 +358,16 @@ fn normals_of_known_surfaces() {
     let (pts, truth) = common::sphere_on_box(20_000, 51);
     let normals = estimate_normals(&pts, 30).unwrap();
     // Away from edges the PCA normal matches the analytic one up to sign.
-    let good = normals.iter().zip(&truth).filter(|(n, t)| n.dot(t).abs() > 0.95).count();
-    assert!(good as f64 / pts.len() as f64 > 0.85, "{good} of {}", pts.len());
+    let good = normals
+        .iter()
+        .zip(&truth)
+        .filter(|(n, t)| n.dot(t).abs() > 0.95)
+        .count();
+    assert!(
+        good as f64 / pts.len() as f64 > 0.85,
+        "{good} of {}",
+        pts.len()
+    );
     for n in &normals {
         assert!((n.norm() - 1.0).abs() < 1e-4);
     }
@@ -363,7 +422,11 @@ fn voxel_downsample_keeps_one_point_per_voxel_and_observed_wins() {
 fn fusion_adds_only_new_surface() {
     let observed = PointCloud::from_positions(common::random_points(5000, 81, 0.5));
     let mut generated_pts = common::random_points(5000, 82, 0.5); // same region: duplicates
-    generated_pts.extend(common::random_points(5000, 83, 0.5).iter().map(|p| p + Vector3::new(3.0, 0.0, 0.0)));
+    generated_pts.extend(
+        common::random_points(5000, 83, 0.5)
+            .iter()
+            .map(|p| p + Vector3::new(3.0, 0.0, 0.0)),
+    );
     let generated = PointCloud::from_positions(generated_pts);
     // 0.2 m voxels hold ~40 observed points each, so every voxel of the first region is occupied.
     let fused = fuse_generated(&observed, &generated, 0.2).unwrap();
@@ -382,8 +445,13 @@ fn fusion_adds_only_new_surface() {
 fn cloud_validation_names_the_problem() {
     let mut c = PointCloud::from_positions(vec![Point3::origin(); 3]);
     c.colors = Some(vec![[0, 0, 0]; 2]);
-    assert!(matches!(c.validate(), Err(GeometryError::SizeMismatch { what: "colors", .. })));
+    assert!(matches!(
+        c.validate(),
+        Err(GeometryError::SizeMismatch { what: "colors", .. })
+    ));
     let c = PointCloud::from_positions(vec![Point3::new(f32::INFINITY, 0.0, 0.0)]);
     assert!(matches!(c.validate(), Err(GeometryError::NonFinite { .. })));
-    assert!(PointCloud::default().require_non_empty("prediction").is_err());
+    assert!(PointCloud::default()
+        .require_non_empty("prediction")
+        .is_err());
 }

@@ -60,7 +60,11 @@ pub fn pose_from_rows(rows: &[[f64; 4]; 4]) -> std::result::Result<Isometry3<f32
     if m.iter().any(|v| !v.is_finite()) {
         return Err("pose has a non-finite entry".into());
     }
-    if (m.fixed_view::<1, 4>(3, 0) - nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0)).abs().max() > 1e-6 {
+    if (m.fixed_view::<1, 4>(3, 0) - nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0))
+        .abs()
+        .max()
+        > 1e-6
+    {
         return Err("pose's last row is not [0, 0, 0, 1]".into());
     }
     let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into_owned();
@@ -74,8 +78,8 @@ pub fn pose_from_rows(rows: &[[f64; 4]; 4]) -> std::result::Result<Isometry3<f32
 
 pub fn read_cameras_json(path: &Path) -> Result<Vec<FrameCamera>> {
     let text = std::fs::read_to_string(path).map_err(|e| IoError::new(path, e))?;
-    let parsed: CamerasJson =
-        serde_json::from_str(&text).map_err(|e| IoError::new(path, IoErrorKind::Json(e.to_string())))?;
+    let parsed: CamerasJson = serde_json::from_str(&text)
+        .map_err(|e| IoError::new(path, IoErrorKind::Json(e.to_string())))?;
     if parsed.frames.is_empty() {
         return Err(IoError::invalid(path, "no frames"));
     }

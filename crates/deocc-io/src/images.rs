@@ -13,7 +13,8 @@ use crate::error::{IoError, IoErrorKind, Result};
 
 fn open_image(path: &Path) -> Result<image::DynamicImage> {
     let bytes = std::fs::read(path).map_err(|e| IoError::new(path, e))?;
-    image::load_from_memory(&bytes).map_err(|e| IoError::new(path, IoErrorKind::Image(e.to_string())))
+    image::load_from_memory(&bytes)
+        .map_err(|e| IoError::new(path, IoErrorKind::Image(e.to_string())))
 }
 
 fn encode_png<P, C>(path: &Path, img: &ImageBuffer<P, C>) -> Result<()>
@@ -25,7 +26,11 @@ where
     // Fast compression: depth and instance maps compress well anyway, and writing 50+ views a
     // second matters more than the last 20% of file size.
     let mut bytes = Vec::new();
-    let encoder = PngEncoder::new_with_quality(Cursor::new(&mut bytes), CompressionType::Fast, FilterType::Adaptive);
+    let encoder = PngEncoder::new_with_quality(
+        Cursor::new(&mut bytes),
+        CompressionType::Fast,
+        FilterType::Adaptive,
+    );
     img.write_with_encoder(encoder)
         .map_err(|e| IoError::new(path, IoErrorKind::Image(e.to_string())))?;
     write_bytes_atomic(path, &bytes)
@@ -36,7 +41,10 @@ fn read_u16_png(path: &Path, what: &str) -> Result<(u32, u32, Vec<u16>)> {
         image::DynamicImage::ImageLuma16(img) => Ok((img.width(), img.height(), img.into_raw())),
         other => Err(IoError::invalid(
             path,
-            format!("expected a 16-bit single-channel PNG ({what}), found {:?}", other.color()),
+            format!(
+                "expected a 16-bit single-channel PNG ({what}), found {:?}",
+                other.color()
+            ),
         )),
     }
 }
@@ -44,7 +52,8 @@ fn read_u16_png(path: &Path, what: &str) -> Result<(u32, u32, Vec<u16>)> {
 /// Reads a 16-bit depth PNG in millimetres into metres.
 pub fn read_depth_png(path: &Path) -> Result<DepthMap> {
     let (w, h, mm) = read_u16_png(path, "depth in millimetres")?;
-    DepthMap::new(w, h, mm.iter().map(|&v| v as f32 / 1000.0).collect()).map_err(|e| IoError::new(path, e))
+    DepthMap::new(w, h, mm.iter().map(|&v| v as f32 / 1000.0).collect())
+        .map_err(|e| IoError::new(path, e))
 }
 
 /// Writes depth in metres as a 16-bit PNG in millimetres. Depth beyond 65.535 m cannot be stored
@@ -85,13 +94,18 @@ impl InstanceMap {
 pub fn read_instance_png(path: &Path) -> Result<InstanceMap> {
     let (width, height, ids) = match open_image(path)? {
         image::DynamicImage::ImageLuma16(img) => (img.width(), img.height(), img.into_raw()),
-        image::DynamicImage::ImageLuma8(img) => {
-            (img.width(), img.height(), img.into_raw().into_iter().map(u16::from).collect())
-        }
+        image::DynamicImage::ImageLuma8(img) => (
+            img.width(),
+            img.height(),
+            img.into_raw().into_iter().map(u16::from).collect(),
+        ),
         other => {
             return Err(IoError::invalid(
                 path,
-                format!("expected a single-channel 8- or 16-bit instance map, found {:?}", other.color()),
+                format!(
+                    "expected a single-channel 8- or 16-bit instance map, found {:?}",
+                    other.color()
+                ),
             ))
         }
     };
@@ -100,7 +114,9 @@ pub fn read_instance_png(path: &Path) -> Result<InstanceMap> {
 
 pub fn write_instance_png(path: &Path, map: &InstanceMap) -> Result<()> {
     let img = ImageBuffer::<Luma<u16>, _>::from_raw(map.width, map.height, map.ids.clone())
-        .ok_or_else(|| IoError::invalid(path, "instance buffer size does not match its dimensions"))?;
+        .ok_or_else(|| {
+            IoError::invalid(path, "instance buffer size does not match its dimensions")
+        })?;
     encode_png(path, &img)
 }
 
@@ -115,7 +131,11 @@ pub fn write_mask_png(path: &Path, width: u32, height: u32, mask: &[bool]) -> Re
 /// Reads a mask PNG: any non-zero pixel of the first channel is inside.
 pub fn read_mask_png(path: &Path) -> Result<(u32, u32, Vec<bool>)> {
     let img = open_image(path)?.to_luma8();
-    Ok((img.width(), img.height(), img.into_raw().into_iter().map(|v| v > 0).collect()))
+    Ok((
+        img.width(),
+        img.height(),
+        img.into_raw().into_iter().map(|v| v > 0).collect(),
+    ))
 }
 
 pub fn read_rgb_png(path: &Path) -> Result<RgbImage> {

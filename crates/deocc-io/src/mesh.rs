@@ -19,7 +19,12 @@ pub fn read_mesh(path: &Path) -> Result<Mesh> {
         "obj" => read_obj(path)?,
         "stl" => read_stl(path)?,
         "ply" => read_ply(path)?,
-        other => return Err(IoError::invalid(path, format!("unknown mesh format '.{other}' (use .obj, .stl or .ply)"))),
+        other => {
+            return Err(IoError::invalid(
+                path,
+                format!("unknown mesh format '.{other}' (use .obj, .stl or .ply)"),
+            ))
+        }
     };
     if mesh.triangles.is_empty() {
         return Err(IoError::invalid(path, "the mesh has no triangles"));
@@ -41,17 +46,33 @@ pub fn read_obj(path: &Path) -> Result<Mesh> {
         let mut words = line.split_whitespace();
         match words.next() {
             Some("v") => {
-                let xyz: Vec<f32> = words.take(3).map(|w| w.parse().map_err(|_| parse_err(path, n, "bad vertex"))).collect::<Result<_>>()?;
+                let xyz: Vec<f32> = words
+                    .take(3)
+                    .map(|w| w.parse().map_err(|_| parse_err(path, n, "bad vertex")))
+                    .collect::<Result<_>>()?;
                 if xyz.len() != 3 || xyz.iter().any(|v| !v.is_finite()) {
-                    return Err(parse_err(path, n, "a vertex needs three finite coordinates"));
+                    return Err(parse_err(
+                        path,
+                        n,
+                        "a vertex needs three finite coordinates",
+                    ));
                 }
                 positions.push(Point3::new(xyz[0], xyz[1], xyz[2]));
             }
             Some("f") => {
                 let mut corners = Vec::new();
                 for w in words {
-                    let idx: i64 = w.split('/').next().unwrap_or("").parse().map_err(|_| parse_err(path, n, "bad face index"))?;
-                    let resolved = if idx < 0 { positions.len() as i64 + idx } else { idx - 1 };
+                    let idx: i64 = w
+                        .split('/')
+                        .next()
+                        .unwrap_or("")
+                        .parse()
+                        .map_err(|_| parse_err(path, n, "bad face index"))?;
+                    let resolved = if idx < 0 {
+                        positions.len() as i64 + idx
+                    } else {
+                        idx - 1
+                    };
                     if resolved < 0 || resolved >= positions.len() as i64 {
                         return Err(parse_err(path, n, "face index out of range"));
                     }
@@ -64,7 +85,11 @@ pub fn read_obj(path: &Path) -> Result<Mesh> {
             _ => {}
         }
     }
-    Ok(Mesh { vertices: PointCloud::from_positions(positions), triangles, extras: Vec::new() })
+    Ok(Mesh {
+        vertices: PointCloud::from_positions(positions),
+        triangles,
+        extras: Vec::new(),
+    })
 }
 
 /// STL, binary or ASCII (vertices are not de-duplicated: every triangle has its own three).
@@ -82,16 +107,31 @@ pub fn read_stl(path: &Path) -> Result<Mesh> {
             let base = 84 + 50 * t + 12;
             for v in 0..3 {
                 let o = base + 12 * v;
-                let f = |k: usize| f32::from_le_bytes([bytes[o + 4 * k], bytes[o + 4 * k + 1], bytes[o + 4 * k + 2], bytes[o + 4 * k + 3]]);
+                let f = |k: usize| {
+                    f32::from_le_bytes([
+                        bytes[o + 4 * k],
+                        bytes[o + 4 * k + 1],
+                        bytes[o + 4 * k + 2],
+                        bytes[o + 4 * k + 3],
+                    ])
+                };
                 positions.push(Point3::new(f(0), f(1), f(2)));
             }
         }
     } else {
-        let text = std::str::from_utf8(&bytes).map_err(|_| IoError::invalid(path, "neither binary STL (size does not match the triangle count) nor ASCII STL"))?;
+        let text = std::str::from_utf8(&bytes).map_err(|_| {
+            IoError::invalid(
+                path,
+                "neither binary STL (size does not match the triangle count) nor ASCII STL",
+            )
+        })?;
         for (i, line) in text.lines().enumerate() {
             let mut words = line.split_whitespace();
             if words.next() == Some("vertex") {
-                let xyz: Vec<f32> = words.take(3).map(|w| w.parse().map_err(|_| parse_err(path, i + 1, "bad vertex"))).collect::<Result<_>>()?;
+                let xyz: Vec<f32> = words
+                    .take(3)
+                    .map(|w| w.parse().map_err(|_| parse_err(path, i + 1, "bad vertex")))
+                    .collect::<Result<_>>()?;
                 if xyz.len() != 3 {
                     return Err(parse_err(path, i + 1, "a vertex needs three coordinates"));
                 }
@@ -99,12 +139,24 @@ pub fn read_stl(path: &Path) -> Result<Mesh> {
             }
         }
         if positions.len() % 3 != 0 {
-            return Err(IoError::invalid(path, "ASCII STL vertex count is not a multiple of 3"));
+            return Err(IoError::invalid(
+                path,
+                "ASCII STL vertex count is not a multiple of 3",
+            ));
         }
     }
-    if let Some(i) = positions.iter().position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite())) {
+    if let Some(i) = positions
+        .iter()
+        .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
+    {
         return Err(IoError::invalid(path, format!("vertex {i} is not finite")));
     }
-    let triangles = (0..positions.len() as u32 / 3).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
-    Ok(Mesh { vertices: PointCloud::from_positions(positions), triangles, extras: Vec::new() })
+    let triangles = (0..positions.len() as u32 / 3)
+        .map(|t| [3 * t, 3 * t + 1, 3 * t + 2])
+        .collect();
+    Ok(Mesh {
+        vertices: PointCloud::from_positions(positions),
+        triangles,
+        extras: Vec::new(),
+    })
 }

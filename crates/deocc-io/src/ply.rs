@@ -120,11 +120,12 @@ fn read_header(path: &Path, r: &mut impl BufRead) -> Result<Header> {
     let mut line = String::new();
     let mut read_line = |line: &mut String, n: usize| -> Result<()> {
         line.clear();
-        let got = r
-            .read_line(line)
-            .map_err(|e| IoError::new(path, e))?;
+        let got = r.read_line(line).map_err(|e| IoError::new(path, e))?;
         if got == 0 {
-            return Err(header_err(path, format!("file ends in the header (line {n})")));
+            return Err(header_err(
+                path,
+                format!("file ends in the header (line {n})"),
+            ));
         }
         Ok(())
     };
@@ -144,13 +145,18 @@ fn read_header(path: &Path, r: &mut impl BufRead) -> Result<Header> {
                     "ascii" => PlyEncoding::Ascii,
                     "binary_little_endian" => PlyEncoding::BinaryLittleEndian,
                     "binary_big_endian" => PlyEncoding::BinaryBigEndian,
-                    other => return Err(header_err(path, format!("line {n}: unknown format '{other}'"))),
+                    other => {
+                        return Err(header_err(
+                            path,
+                            format!("line {n}: unknown format '{other}'"),
+                        ))
+                    }
                 })
             }
             ["element", name, count] => {
-                let count = count
-                    .parse()
-                    .map_err(|_| header_err(path, format!("line {n}: bad element count '{count}'")))?;
+                let count = count.parse().map_err(|_| {
+                    header_err(path, format!("line {n}: bad element count '{count}'"))
+                })?;
                 elements.push(Element {
                     name: name.to_string(),
                     count,
@@ -161,9 +167,9 @@ fn read_header(path: &Path, r: &mut impl BufRead) -> Result<Header> {
                 let (Some(count), Some(item)) = (Scalar::parse(count), Scalar::parse(item)) else {
                     return Err(header_err(path, format!("line {n}: unknown list types")));
                 };
-                let el = elements
-                    .last_mut()
-                    .ok_or_else(|| header_err(path, format!("line {n}: property before any element")))?;
+                let el = elements.last_mut().ok_or_else(|| {
+                    header_err(path, format!("line {n}: property before any element"))
+                })?;
                 el.properties.push(Property {
                     name: name.to_string(),
                     kind: PropertyKind::List { count, item },
@@ -172,16 +178,21 @@ fn read_header(path: &Path, r: &mut impl BufRead) -> Result<Header> {
             ["property", ty, name] => {
                 let ty = Scalar::parse(ty)
                     .ok_or_else(|| header_err(path, format!("line {n}: unknown type '{ty}'")))?;
-                let el = elements
-                    .last_mut()
-                    .ok_or_else(|| header_err(path, format!("line {n}: property before any element")))?;
+                let el = elements.last_mut().ok_or_else(|| {
+                    header_err(path, format!("line {n}: property before any element"))
+                })?;
                 el.properties.push(Property {
                     name: name.to_string(),
                     kind: PropertyKind::Scalar(ty),
                 });
             }
             ["end_header"] => break,
-            _ => return Err(header_err(path, format!("line {n}: cannot parse '{}'", line.trim_end()))),
+            _ => {
+                return Err(header_err(
+                    path,
+                    format!("line {n}: cannot parse '{}'", line.trim_end()),
+                ))
+            }
         }
     }
     let encoding = encoding.ok_or_else(|| header_err(path, "no 'format' line"))?;
@@ -200,26 +211,48 @@ pub struct Mesh {
 impl Mesh {
     /// An uninterpreted vertex property by name.
     pub fn extra(&self, name: &str) -> Option<&[f64]> {
-        self.extras.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
+        self.extras
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
     }
 }
 
 /// Row source over either encoding.
 enum Body<R: BufRead> {
-    Ascii { reader: R, line: String, tokens: Vec<f64>, pos: usize, line_no: usize },
-    Binary { reader: R, big_endian: bool, buf: Vec<u8> },
+    Ascii {
+        reader: R,
+        line: String,
+        tokens: Vec<f64>,
+        pos: usize,
+        line_no: usize,
+    },
+    Binary {
+        reader: R,
+        big_endian: bool,
+        buf: Vec<u8>,
+    },
 }
 
 impl<R: BufRead> Body<R> {
     fn next_value(&mut self, path: &Path, ty: Scalar, what: &str) -> Result<f64> {
         match self {
-            Body::Ascii { reader, line, tokens, pos, line_no } => {
+            Body::Ascii {
+                reader,
+                line,
+                tokens,
+                pos,
+                line_no,
+            } => {
                 while *pos >= tokens.len() {
                     line.clear();
                     *line_no += 1;
                     let got = reader.read_line(line).map_err(|e| IoError::new(path, e))?;
                     if got == 0 {
-                        return Err(data_err(path, format!("file ends early while reading {what}")));
+                        return Err(data_err(
+                            path,
+                            format!("file ends early while reading {what}"),
+                        ));
                     }
                     tokens.clear();
                     for t in line.split_whitespace() {
@@ -232,7 +265,11 @@ impl<R: BufRead> Body<R> {
                 *pos += 1;
                 Ok(tokens[*pos - 1])
             }
-            Body::Binary { reader, big_endian, buf } => {
+            Body::Binary {
+                reader,
+                big_endian,
+                buf,
+            } => {
                 let n = ty.size();
                 buf.resize(n, 0);
                 reader.read_exact(&mut buf[..n]).map_err(|e| {
@@ -259,8 +296,18 @@ pub fn read_ply(path: &Path) -> Result<Mesh> {
 pub fn read_ply_from(path: &Path, mut reader: impl BufRead) -> Result<Mesh> {
     let header = read_header(path, &mut reader)?;
     let mut body = match header.encoding {
-        PlyEncoding::Ascii => Body::Ascii { reader, line: String::new(), tokens: Vec::new(), pos: 0, line_no: 0 },
-        e => Body::Binary { reader, big_endian: e == PlyEncoding::BinaryBigEndian, buf: Vec::new() },
+        PlyEncoding::Ascii => Body::Ascii {
+            reader,
+            line: String::new(),
+            tokens: Vec::new(),
+            pos: 0,
+            line_no: 0,
+        },
+        e => Body::Binary {
+            reader,
+            big_endian: e == PlyEncoding::BinaryBigEndian,
+            buf: Vec::new(),
+        },
     };
     let mut mesh = Mesh::default();
     let mut saw_vertex = false;
@@ -273,7 +320,12 @@ pub fn read_ply_from(path: &Path, mut reader: impl BufRead) -> Result<Mesh> {
         } else {
             for row in 0..el.count {
                 for p in &el.properties {
-                    skip_property(path, p, &mut body, &format!("element '{}' row {row}", el.name))?;
+                    skip_property(
+                        path,
+                        p,
+                        &mut body,
+                        &format!("element '{}' row {row}", el.name),
+                    )?;
                 }
             }
         }
@@ -282,8 +334,16 @@ pub fn read_ply_from(path: &Path, mut reader: impl BufRead) -> Result<Mesh> {
         return Err(header_err(path, "no 'vertex' element"));
     }
     let n = mesh.vertices.len() as u32;
-    if let Some((i, t)) = mesh.triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&v| v >= n)) {
-        return Err(data_err(path, format!("face {i} refers to vertex {:?}, but there are only {n}", t)));
+    if let Some((i, t)) = mesh
+        .triangles
+        .iter()
+        .enumerate()
+        .find(|(_, t)| t.iter().any(|&v| v >= n))
+    {
+        return Err(data_err(
+            path,
+            format!("face {i} refers to vertex {:?}, but there are only {n}", t),
+        ));
     }
     mesh.vertices
         .validate()
@@ -300,7 +360,12 @@ pub fn read_point_cloud(path: &Path) -> Result<PointCloud> {
     Ok(cloud)
 }
 
-fn skip_property<R: BufRead>(path: &Path, p: &Property, body: &mut Body<R>, what: &str) -> Result<()> {
+fn skip_property<R: BufRead>(
+    path: &Path,
+    p: &Property,
+    body: &mut Body<R>,
+    what: &str,
+) -> Result<()> {
     match p.kind {
         PropertyKind::Scalar(t) => {
             body.next_value(path, t, what)?;
@@ -316,18 +381,43 @@ fn skip_property<R: BufRead>(path: &Path, p: &Property, body: &mut Body<R>, what
 }
 
 const KNOWN_VERTEX_PROPERTIES: [&str; 18] = [
-    "x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "r", "g", "b", "diffuse_red", "diffuse_green", "diffuse_blue", "instance", "instance_id", "generated",
+    "x",
+    "y",
+    "z",
+    "nx",
+    "ny",
+    "nz",
+    "red",
+    "green",
+    "blue",
+    "r",
+    "g",
+    "b",
+    "diffuse_red",
+    "diffuse_green",
+    "diffuse_blue",
+    "instance",
+    "instance_id",
+    "generated",
 ];
 
 type VertexData = (PointCloud, Vec<(String, Vec<f64>)>);
 
 fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<VertexData> {
     // Column of each known attribute, looked up once.
-    let find = |names: &[&str]| el.properties.iter().position(|p| names.contains(&p.name.as_str()));
+    let find = |names: &[&str]| {
+        el.properties
+            .iter()
+            .position(|p| names.contains(&p.name.as_str()))
+    };
     let (Some(ix), Some(iy), Some(iz)) = (find(&["x"]), find(&["y"]), find(&["z"])) else {
         return Err(header_err(path, "the vertex element lacks x, y or z"));
     };
-    let color = match (find(&["red", "r", "diffuse_red"]), find(&["green", "g", "diffuse_green"]), find(&["blue", "b", "diffuse_blue"])) {
+    let color = match (
+        find(&["red", "r", "diffuse_red"]),
+        find(&["green", "g", "diffuse_green"]),
+        find(&["blue", "b", "diffuse_blue"]),
+    ) {
         (Some(r), Some(g), Some(b)) => Some([r, g, b]),
         _ => None,
     };
@@ -339,7 +429,10 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
     let generated = find(&["generated"]);
     // Colours stored as float (0..1) are scaled to bytes.
     let color_is_float = color.is_some_and(|c| {
-        matches!(el.properties[c[0]].kind, PropertyKind::Scalar(Scalar::F32 | Scalar::F64))
+        matches!(
+            el.properties[c[0]].kind,
+            PropertyKind::Scalar(Scalar::F32 | Scalar::F64)
+        )
     });
 
     let n = el.count;
@@ -365,13 +458,21 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
     for r in 0..n {
         for (j, p) in el.properties.iter().enumerate() {
             match p.kind {
-                PropertyKind::Scalar(t) => row[j] = body.next_value(path, t, &format!("vertex {r}"))?,
+                PropertyKind::Scalar(t) => {
+                    row[j] = body.next_value(path, t, &format!("vertex {r}"))?
+                }
                 PropertyKind::List { .. } => skip_property(path, p, body, &format!("vertex {r}"))?,
             }
         }
         let p = Point3::new(row[ix] as f32, row[iy] as f32, row[iz] as f32);
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
-            return Err(data_err(path, format!("vertex {r} has a non-finite coordinate ({}, {}, {})", p.x, p.y, p.z)));
+            return Err(data_err(
+                path,
+                format!(
+                    "vertex {r} has a non-finite coordinate ({}, {}, {})",
+                    p.x, p.y, p.z
+                ),
+            ));
         }
         cloud.positions.push(p);
         if let (Some(c), Some(out)) = (color, cloud.colors.as_mut()) {
@@ -379,7 +480,11 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
             out.push(c.map(|k| (row[k] * scale).round().clamp(0.0, 255.0) as u8));
         }
         if let (Some(c), Some(out)) = (normal, cloud.normals.as_mut()) {
-            out.push(Vector3::new(row[c[0]] as f32, row[c[1]] as f32, row[c[2]] as f32));
+            out.push(Vector3::new(
+                row[c[0]] as f32,
+                row[c[1]] as f32,
+                row[c[2]] as f32,
+            ));
         }
         if let (Some(k), Some(out)) = (instance, cloud.instance.as_mut()) {
             out.push(row[k].max(0.0) as u32);
@@ -395,12 +500,15 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
 }
 
 fn read_faces<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<Vec<[u32; 3]>> {
-    let idx = el
-        .properties
-        .iter()
-        .position(|p| matches!(p.kind, PropertyKind::List { .. }) && (p.name == "vertex_indices" || p.name == "vertex_index"));
+    let idx = el.properties.iter().position(|p| {
+        matches!(p.kind, PropertyKind::List { .. })
+            && (p.name == "vertex_indices" || p.name == "vertex_index")
+    });
     let Some(idx) = idx else {
-        return Err(header_err(path, "the face element has no vertex_indices list"));
+        return Err(header_err(
+            path,
+            "the face element has no vertex_indices list",
+        ));
     };
     let mut tris = Vec::with_capacity(el.count);
     let mut corners = Vec::new();
@@ -411,7 +519,9 @@ fn read_faces<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Resu
                 skip_property(path, p, body, &what)?;
                 continue;
             }
-            let PropertyKind::List { count, item } = p.kind else { unreachable!() };
+            let PropertyKind::List { count, item } = p.kind else {
+                unreachable!()
+            };
             let k = body.next_value(path, count, &what)?;
             if !(0.0..=1e6).contains(&k) {
                 return Err(data_err(path, format!("face {r} has {k} corners")));
@@ -420,7 +530,10 @@ fn read_faces<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Resu
             for _ in 0..k as usize {
                 let v = body.next_value(path, item, &what)?;
                 if v < 0.0 {
-                    return Err(data_err(path, format!("face {r} has a negative vertex index")));
+                    return Err(data_err(
+                        path,
+                        format!("face {r} has a negative vertex index"),
+                    ));
                 }
                 corners.push(v as u32);
             }
@@ -441,19 +554,42 @@ pub fn write_point_cloud(path: &Path, cloud: &PointCloud, encoding: PlyEncoding)
 pub type ExtraU8<'a> = (&'a str, &'a [u8]);
 
 /// Writes a point cloud with extra u8 vertex properties, atomically.
-pub fn write_point_cloud_with_extras(path: &Path, cloud: &PointCloud, extras: &[ExtraU8], encoding: PlyEncoding) -> Result<()> {
+pub fn write_point_cloud_with_extras(
+    path: &Path,
+    cloud: &PointCloud,
+    extras: &[ExtraU8],
+    encoding: PlyEncoding,
+) -> Result<()> {
     write_ply_impl(path, cloud, &[], extras, encoding)
 }
 
 /// Writes vertices (with their attributes) and triangles as PLY, atomically.
-pub fn write_mesh(path: &Path, vertices: &PointCloud, triangles: &[[u32; 3]], encoding: PlyEncoding) -> Result<()> {
+pub fn write_mesh(
+    path: &Path,
+    vertices: &PointCloud,
+    triangles: &[[u32; 3]],
+    encoding: PlyEncoding,
+) -> Result<()> {
     write_ply_impl(path, vertices, triangles, &[], encoding)
 }
 
-fn write_ply_impl(path: &Path, vertices: &PointCloud, triangles: &[[u32; 3]], extras: &[ExtraU8], encoding: PlyEncoding) -> Result<()> {
+fn write_ply_impl(
+    path: &Path,
+    vertices: &PointCloud,
+    triangles: &[[u32; 3]],
+    extras: &[ExtraU8],
+    encoding: PlyEncoding,
+) -> Result<()> {
     vertices.validate().map_err(|e| IoError::new(path, e))?;
     if let Some((name, v)) = extras.iter().find(|(_, v)| v.len() != vertices.len()) {
-        return Err(IoError::invalid(path, format!("extra property '{name}' has {} values for {} points", v.len(), vertices.len())));
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "extra property '{name}' has {} values for {} points",
+                v.len(),
+                vertices.len()
+            ),
+        ));
     }
     write_atomic(path, |w| {
         let fmt = match encoding {
@@ -468,7 +604,10 @@ fn write_ply_impl(path: &Path, vertices: &PointCloud, triangles: &[[u32; 3]], ex
             writeln!(w, "property float nx\nproperty float ny\nproperty float nz")?;
         }
         if vertices.colors.is_some() {
-            writeln!(w, "property uchar red\nproperty uchar green\nproperty uchar blue")?;
+            writeln!(
+                w,
+                "property uchar red\nproperty uchar green\nproperty uchar blue"
+            )?;
         }
         if vertices.instance.is_some() {
             writeln!(w, "property uint instance")?;
@@ -480,17 +619,32 @@ fn write_ply_impl(path: &Path, vertices: &PointCloud, triangles: &[[u32; 3]], ex
             writeln!(w, "property uchar {name}")?;
         }
         if !triangles.is_empty() {
-            writeln!(w, "element face {}\nproperty list uchar uint vertex_indices", triangles.len())?;
+            writeln!(
+                w,
+                "element face {}\nproperty list uchar uint vertex_indices",
+                triangles.len()
+            )?;
         }
         writeln!(w, "end_header")?;
         match encoding {
             PlyEncoding::Ascii => write_ascii_body(w, vertices, triangles, extras),
-            e => write_binary_body(w, vertices, triangles, extras, e == PlyEncoding::BinaryBigEndian),
+            e => write_binary_body(
+                w,
+                vertices,
+                triangles,
+                extras,
+                e == PlyEncoding::BinaryBigEndian,
+            ),
         }
     })
 }
 
-fn write_ascii_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]], extras: &[ExtraU8]) -> std::io::Result<()> {
+fn write_ascii_body(
+    w: &mut impl Write,
+    c: &PointCloud,
+    tris: &[[u32; 3]],
+    extras: &[ExtraU8],
+) -> std::io::Result<()> {
     for i in 0..c.len() {
         let p = c.positions[i];
         // `{}` on f32 prints the shortest string that parses back to the same value: bit-exact.
@@ -518,9 +672,27 @@ fn write_ascii_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]], extra
     Ok(())
 }
 
-fn write_binary_body(w: &mut impl Write, c: &PointCloud, tris: &[[u32; 3]], extras: &[ExtraU8], big_endian: bool) -> std::io::Result<()> {
-    let f = |v: f32| if big_endian { v.to_be_bytes() } else { v.to_le_bytes() };
-    let u = |v: u32| if big_endian { v.to_be_bytes() } else { v.to_le_bytes() };
+fn write_binary_body(
+    w: &mut impl Write,
+    c: &PointCloud,
+    tris: &[[u32; 3]],
+    extras: &[ExtraU8],
+    big_endian: bool,
+) -> std::io::Result<()> {
+    let f = |v: f32| {
+        if big_endian {
+            v.to_be_bytes()
+        } else {
+            v.to_le_bytes()
+        }
+    };
+    let u = |v: u32| {
+        if big_endian {
+            v.to_be_bytes()
+        } else {
+            v.to_le_bytes()
+        }
+    };
     let mut row = Vec::with_capacity(64);
     for i in 0..c.len() {
         row.clear();

@@ -2,7 +2,10 @@ use std::path::Path;
 
 use deocc_geometry::{DepthMap, Intrinsics, PointCloud};
 use deocc_io::cameras::{read_cameras_json, write_cameras_json, FrameCamera};
-use deocc_io::images::{read_depth_png, read_instance_png, write_depth_png, write_instance_png, write_rgb_png, InstanceMap};
+use deocc_io::images::{
+    read_depth_png, read_instance_png, write_depth_png, write_instance_png, write_rgb_png,
+    InstanceMap,
+};
 use deocc_io::mesh::read_mesh;
 use deocc_io::ply::{read_ply, write_mesh};
 use deocc_io::{read_point_cloud, write_point_cloud, PlyEncoding};
@@ -19,7 +22,9 @@ fn awkward_cloud() -> PointCloud {
     };
     let mut positions: Vec<Point3<f32>> = (0..1000)
         .map(|_| {
-            let f = |b: u64| f32::from_bits((b as u32 & 0x807f_ffff) | (((b >> 32) as u32 % 60 + 100) << 23));
+            let f = |b: u64| {
+                f32::from_bits((b as u32 & 0x807f_ffff) | (((b >> 32) as u32 % 60 + 100) << 23))
+            };
             Point3::new(f(next()), f(next()), f(next()))
         })
         .collect();
@@ -27,23 +32,42 @@ fn awkward_cloud() -> PointCloud {
     positions.push(Point3::new(f32::MAX, -f32::MAX, 0.1));
     let n = positions.len();
     PointCloud {
-        colors: Some((0..n).map(|i| [(i % 256) as u8, (i * 7 % 256) as u8, 255]).collect()),
-        normals: Some((0..n).map(|i| Vector3::new(i as f32 * 0.001, -0.5, 0.25)).collect()),
-        instance: Some((0..n).map(|i| (i as u32).wrapping_mul(2_654_435_761)).collect()),
+        colors: Some(
+            (0..n)
+                .map(|i| [(i % 256) as u8, (i * 7 % 256) as u8, 255])
+                .collect(),
+        ),
+        normals: Some(
+            (0..n)
+                .map(|i| Vector3::new(i as f32 * 0.001, -0.5, 0.25))
+                .collect(),
+        ),
+        instance: Some(
+            (0..n)
+                .map(|i| (i as u32).wrapping_mul(2_654_435_761))
+                .collect(),
+        ),
         generated: Some((0..n).map(|i| (i % 2) as u8).collect()),
         positions,
     }
 }
 
 fn bits(c: &PointCloud) -> Vec<u32> {
-    c.positions.iter().flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]).collect()
+    c.positions
+        .iter()
+        .flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+        .collect()
 }
 
 #[test]
 fn ply_round_trips_bit_exactly_in_every_encoding() {
     let dir = tempfile::tempdir().unwrap();
     let cloud = awkward_cloud();
-    for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian, PlyEncoding::BinaryBigEndian] {
+    for enc in [
+        PlyEncoding::Ascii,
+        PlyEncoding::BinaryLittleEndian,
+        PlyEncoding::BinaryBigEndian,
+    ] {
         let path = dir.path().join(format!("{enc:?}.ply"));
         write_point_cloud(&path, &cloud, enc).unwrap();
         let back = read_point_cloud(&path).unwrap();
@@ -51,8 +75,19 @@ fn ply_round_trips_bit_exactly_in_every_encoding() {
         assert_eq!(back.colors, cloud.colors);
         assert_eq!(back.instance, cloud.instance);
         assert_eq!(back.generated, cloud.generated);
-        let nb: Vec<u32> = back.normals.unwrap().iter().flat_map(|n| n.iter().map(|v| v.to_bits()).collect::<Vec<_>>()).collect();
-        let na: Vec<u32> = cloud.normals.as_ref().unwrap().iter().flat_map(|n| n.iter().map(|v| v.to_bits()).collect::<Vec<_>>()).collect();
+        let nb: Vec<u32> = back
+            .normals
+            .unwrap()
+            .iter()
+            .flat_map(|n| n.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+            .collect();
+        let na: Vec<u32> = cloud
+            .normals
+            .as_ref()
+            .unwrap()
+            .iter()
+            .flat_map(|n| n.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+            .collect();
         assert_eq!(nb, na);
     }
 }
@@ -60,7 +95,12 @@ fn ply_round_trips_bit_exactly_in_every_encoding() {
 #[test]
 fn ply_mesh_round_trips() {
     let dir = tempfile::tempdir().unwrap();
-    let verts = PointCloud::from_positions(vec![Point3::origin(), Point3::new(1.0, 0.0, 0.0), Point3::new(0.0, 1.0, 0.0), Point3::new(1.0, 1.0, 0.0)]);
+    let verts = PointCloud::from_positions(vec![
+        Point3::origin(),
+        Point3::new(1.0, 0.0, 0.0),
+        Point3::new(0.0, 1.0, 0.0),
+        Point3::new(1.0, 1.0, 0.0),
+    ]);
     let tris = vec![[0, 1, 2], [1, 3, 2]];
     for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
         let path = dir.path().join("m.ply");
@@ -85,7 +125,10 @@ fn ply_errors_name_the_file_and_the_problem() {
     let truncated = dir.path().join("truncated.ply");
     std::fs::write(&truncated, &bytes[..bytes.len() - 7]).unwrap();
     let e = err_text(read_point_cloud(&truncated));
-    assert!(e.contains("truncated.ply") && e.contains("truncated"), "{e}");
+    assert!(
+        e.contains("truncated.ply") && e.contains("truncated"),
+        "{e}"
+    );
 
     let cases: [(&str, &[u8], &str); 6] = [
         ("notply.ply", b"hello\n", "does not start with 'ply'"),
@@ -117,7 +160,11 @@ fn writing_a_non_finite_cloud_fails_and_leaves_nothing() {
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
     // An unwritable place: error naming it, nothing created.
     let nowhere = dir.path().join("no/such/dir/x.ply");
-    let e = err_text(write_point_cloud(&nowhere, &awkward_cloud(), PlyEncoding::Ascii));
+    let e = err_text(write_point_cloud(
+        &nowhere,
+        &awkward_cloud(),
+        PlyEncoding::Ascii,
+    ));
     assert!(e.contains("x.ply"), "{e}");
 }
 
@@ -125,7 +172,15 @@ fn writing_a_non_finite_cloud_fails_and_leaves_nothing() {
 fn depth_png_round_trips_in_millimetres() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("d.png");
-    let data: Vec<f32> = (0..64 * 48).map(|i| if i % 5 == 0 { 0.0 } else { 0.5 + i as f32 * 0.001 }).collect();
+    let data: Vec<f32> = (0..64 * 48)
+        .map(|i| {
+            if i % 5 == 0 {
+                0.0
+            } else {
+                0.5 + i as f32 * 0.001
+            }
+        })
+        .collect();
     let depth = DepthMap::new(64, 48, data.clone()).unwrap();
     write_depth_png(&p, &depth).unwrap();
     let back = read_depth_png(&p).unwrap();
@@ -151,7 +206,11 @@ fn depth_png_rejects_8_bit_and_corrupt_files() {
 fn instance_png_round_trips() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("i.png");
-    let map = InstanceMap { width: 8, height: 4, ids: (0..32).map(|i| i * 1000).collect() };
+    let map = InstanceMap {
+        width: 8,
+        height: 4,
+        ids: (0..32).map(|i| i * 1000).collect(),
+    };
     write_instance_png(&p, &map).unwrap();
     assert_eq!(read_instance_png(&p).unwrap(), map);
 }
@@ -160,10 +219,21 @@ fn instance_png_round_trips() {
 fn cameras_json_round_trips_and_validates() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("cameras.json");
-    let pose = Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3));
+    let pose = Isometry3::from_parts(
+        Translation3::new(1.0, 2.0, 3.0),
+        UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
+    );
     let frames = vec![
-        FrameCamera { name: "a".into(), intrinsics: Intrinsics::new(500.0, 510.0, 320.0, 240.0, 640, 480).unwrap(), world_from_camera: Some(pose) },
-        FrameCamera { name: "b".into(), intrinsics: Intrinsics::new(500.0, 510.0, 320.0, 240.0, 640, 480).unwrap(), world_from_camera: None },
+        FrameCamera {
+            name: "a".into(),
+            intrinsics: Intrinsics::new(500.0, 510.0, 320.0, 240.0, 640, 480).unwrap(),
+            world_from_camera: Some(pose),
+        },
+        FrameCamera {
+            name: "b".into(),
+            intrinsics: Intrinsics::new(500.0, 510.0, 320.0, 240.0, 640, 480).unwrap(),
+            world_from_camera: None,
+        },
     ];
     write_cameras_json(&p, &frames).unwrap();
     let back = read_cameras_json(&p).unwrap();
@@ -186,7 +256,11 @@ fn cameras_json_round_trips_and_validates() {
 fn obj_and_stl_meshes_load() {
     let dir = tempfile::tempdir().unwrap();
     let obj = dir.path().join("quad.obj");
-    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1 2/2 3/3 4/4\n").unwrap();
+    std::fs::write(
+        &obj,
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1 2/2 3/3 4/4\n",
+    )
+    .unwrap();
     let m = read_mesh(&obj).unwrap();
     assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]]);
     let stl = dir.path().join("tri.stl");

@@ -17,7 +17,9 @@ use std::path::{Path, PathBuf};
 use deocc_geometry::camera::Camera;
 use deocc_geometry::DepthMap;
 use deocc_io::cameras::{write_cameras_json, write_json, FrameCamera};
-use deocc_io::images::{write_depth_png, write_instance_png, write_mask_png, write_rgb_png, InstanceMap};
+use deocc_io::images::{
+    write_depth_png, write_instance_png, write_mask_png, write_rgb_png, InstanceMap,
+};
 use deocc_io::ply::write_point_cloud_with_extras;
 use deocc_io::PlyEncoding;
 use image::RgbImage;
@@ -87,13 +89,23 @@ pub struct RenderedView {
     pub visibility: Vec<Visibility>,
 }
 
-pub fn render_view(scene: &Scene, tris: &SceneTriangles, config: &SceneConfig, view: usize) -> RenderedView {
+pub fn render_view(
+    scene: &Scene,
+    tris: &SceneTriangles,
+    config: &SceneConfig,
+    view: usize,
+) -> RenderedView {
     let camera = scene.cameras[view];
     let frame = render_scene(&camera, scene, tris);
     let rgb = shade(&frame, &camera, scene, tris, [0, 0, 0]);
     let mut sensor = frame.clone();
     if config.sensor_noise {
-        add_sensor_noise(&mut sensor, &camera, tris, scene.seed.wrapping_mul(1000).wrapping_add(view as u64));
+        add_sensor_noise(
+            &mut sensor,
+            &camera,
+            tris,
+            scene.seed.wrapping_mul(1000).wrapping_add(view as u64),
+        );
     }
     let (w, h) = (frame.width, frame.height);
     let depth = DepthMap::new(w, h, sensor.depth_m).unwrap_or_else(|_| DepthMap::zeros(w, h));
@@ -106,13 +118,31 @@ pub fn render_view(scene: &Scene, tris: &SceneTriangles, config: &SceneConfig, v
         if amodal_px == 0 {
             continue;
         }
-        let visible_px = frame.instance.iter().filter(|&&i| i == obj.instance_id).count() as u32;
+        let visible_px = frame
+            .instance
+            .iter()
+            .filter(|&&i| i == obj.instance_id)
+            .count() as u32;
         let truncated = (0..w as usize).any(|u| mask[u] || mask[(h as usize - 1) * w as usize + u])
-            || (0..h as usize).any(|v| mask[v * w as usize] || mask[v * w as usize + w as usize - 1]);
-        visibility.push(Visibility { view, instance_id: obj.instance_id, visible_px, amodal_px, truncated });
+            || (0..h as usize)
+                .any(|v| mask[v * w as usize] || mask[v * w as usize + w as usize - 1]);
+        visibility.push(Visibility {
+            view,
+            instance_id: obj.instance_id,
+            visible_px,
+            amodal_px,
+            truncated,
+        });
         amodal.push((obj.instance_id, mask));
     }
-    RenderedView { camera, frame, depth, rgb, amodal, visibility }
+    RenderedView {
+        camera,
+        frame,
+        depth,
+        rgb,
+        amodal,
+        visibility,
+    }
 }
 
 /// A scene with all its views rendered and its ground truth sampled.
@@ -132,7 +162,11 @@ pub fn render_full_scene(config: &SceneConfig, seed: u64) -> Result<RenderedScen
     let cloud = sample_surfaces(&scene, &tris, config.gt_points_per_m2, seed);
     let frames: Vec<Frame> = views.iter().map(|v| v.frame.clone()).collect();
     let seen = seen_flags(&cloud, &scene.cameras, &frames);
-    Ok(RenderedScene { scene, views, ground_truth: GroundTruth { cloud, seen } })
+    Ok(RenderedScene {
+        scene,
+        views,
+        ground_truth: GroundTruth { cloud, seen },
+    })
 }
 
 fn frame_name(view: usize) -> String {
@@ -140,33 +174,60 @@ fn frame_name(view: usize) -> String {
 }
 
 /// Writes a rendered scene into `dir` (created if needed).
-pub fn write_scene(dir: &Path, config: &SceneConfig, rendered: &RenderedScene) -> Result<SceneInfo> {
+pub fn write_scene(
+    dir: &Path,
+    config: &SceneConfig,
+    rendered: &RenderedScene,
+) -> Result<SceneInfo> {
     for sub in ["rgb", "depth", "instances", "amodal"] {
-        std::fs::create_dir_all(dir.join(sub)).map_err(|e| deocc_io::IoError::new(&dir.join(sub), e))?;
+        std::fs::create_dir_all(dir.join(sub))
+            .map_err(|e| deocc_io::IoError::new(&dir.join(sub), e))?;
     }
-    rendered.views.par_iter().enumerate().try_for_each(|(v, view)| -> Result<()> {
-        let name = frame_name(v);
-        write_rgb_png(&dir.join("rgb").join(format!("{name}.png")), &view.rgb)?;
-        write_depth_png(&dir.join("depth").join(format!("{name}.png")), &view.depth)?;
-        let inst = InstanceMap { width: view.frame.width, height: view.frame.height, ids: view.frame.instance.clone() };
-        write_instance_png(&dir.join("instances").join(format!("{name}.png")), &inst)?;
-        let adir = dir.join("amodal").join(&name);
-        std::fs::create_dir_all(&adir).map_err(|e| deocc_io::IoError::new(&adir, e))?;
-        for (id, mask) in &view.amodal {
-            write_mask_png(&adir.join(format!("{id:04}.png")), view.frame.width, view.frame.height, mask)?;
-        }
-        Ok(())
-    })?;
+    rendered
+        .views
+        .par_iter()
+        .enumerate()
+        .try_for_each(|(v, view)| -> Result<()> {
+            let name = frame_name(v);
+            write_rgb_png(&dir.join("rgb").join(format!("{name}.png")), &view.rgb)?;
+            write_depth_png(&dir.join("depth").join(format!("{name}.png")), &view.depth)?;
+            let inst = InstanceMap {
+                width: view.frame.width,
+                height: view.frame.height,
+                ids: view.frame.instance.clone(),
+            };
+            write_instance_png(&dir.join("instances").join(format!("{name}.png")), &inst)?;
+            let adir = dir.join("amodal").join(&name);
+            std::fs::create_dir_all(&adir).map_err(|e| deocc_io::IoError::new(&adir, e))?;
+            for (id, mask) in &view.amodal {
+                write_mask_png(
+                    &adir.join(format!("{id:04}.png")),
+                    view.frame.width,
+                    view.frame.height,
+                    mask,
+                )?;
+            }
+            Ok(())
+        })?;
     let frames: Vec<FrameCamera> = rendered
         .views
         .iter()
         .enumerate()
-        .map(|(v, view)| FrameCamera { name: frame_name(v), intrinsics: view.camera.intrinsics, world_from_camera: Some(view.camera.world_from_camera) })
+        .map(|(v, view)| FrameCamera {
+            name: frame_name(v),
+            intrinsics: view.camera.intrinsics,
+            world_from_camera: Some(view.camera.world_from_camera),
+        })
         .collect();
     write_cameras_json(&dir.join("cameras.json"), &frames)?;
     let gt = &rendered.ground_truth;
     let seen_u8: Vec<u8> = gt.seen.iter().map(|&s| s as u8).collect();
-    write_point_cloud_with_extras(&dir.join("ground_truth.ply"), &gt.cloud, &[("seen", &seen_u8)], PlyEncoding::BinaryLittleEndian)?;
+    write_point_cloud_with_extras(
+        &dir.join("ground_truth.ply"),
+        &gt.cloud,
+        &[("seen", &seen_u8)],
+        PlyEncoding::BinaryLittleEndian,
+    )?;
     let info = SceneInfo {
         seed: rendered.scene.seed,
         config: config.clone(),
@@ -174,9 +235,18 @@ pub fn write_scene(dir: &Path, config: &SceneConfig, rendered: &RenderedScene) -
             .scene
             .objects
             .iter()
-            .map(|o| ObjectInfo { instance_id: o.instance_id, category: o.category, structure: o.category.is_structure(), held_out: o.category.is_held_out() })
+            .map(|o| ObjectInfo {
+                instance_id: o.instance_id,
+                category: o.category,
+                structure: o.category.is_structure(),
+                held_out: o.category.is_held_out(),
+            })
             .collect(),
-        visibility: rendered.views.iter().flat_map(|v| v.visibility.clone()).collect(),
+        visibility: rendered
+            .views
+            .iter()
+            .flat_map(|v| v.visibility.clone())
+            .collect(),
         ground_truth_points: gt.cloud.len(),
         ground_truth_seen: gt.seen.iter().filter(|&&s| s).count(),
     };
@@ -197,7 +267,12 @@ pub struct Preset {
 pub fn bench_v1() -> Preset {
     Preset {
         name: "bench-v1".into(),
-        config: SceneConfig { views: 10, camera_path: CameraPath::RobotHead, held_out_shapes: true, ..SceneConfig::default() },
+        config: SceneConfig {
+            views: 10,
+            camera_path: CameraPath::RobotHead,
+            held_out_shapes: true,
+            ..SceneConfig::default()
+        },
         seeds: (9_000_000..9_000_050).collect(),
     }
 }
@@ -216,7 +291,9 @@ pub fn preset(name: &str) -> Result<Preset> {
             p.seeds.truncate(5);
             Ok(p)
         }
-        other => Err(SynthError::Config(format!("unknown preset '{other}' (known: bench-v1, bench-v1-small)"))),
+        other => Err(SynthError::Config(format!(
+            "unknown preset '{other}' (known: bench-v1, bench-v1-small)"
+        ))),
     }
 }
 
@@ -245,7 +322,10 @@ pub fn set_stats(infos: &[SceneInfo]) -> SetStats {
         objects += info.objects.iter().filter(|o| !o.structure).count();
         views += info.config.views;
         for v in &info.visibility {
-            let structure = info.objects.iter().any(|o| o.instance_id == v.instance_id && o.structure);
+            let structure = info
+                .objects
+                .iter()
+                .any(|o| o.instance_id == v.instance_id && o.structure);
             if structure || v.truncated {
                 continue;
             }

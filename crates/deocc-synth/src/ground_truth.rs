@@ -19,7 +19,12 @@ pub struct GroundTruth {
 
 /// Samples `density` points per square metre uniformly over every triangle (area-weighted; the
 /// fractional expected count decided by the seeded generator, so the sampling is deterministic).
-pub fn sample_surfaces(scene: &Scene, tris: &SceneTriangles, density: f32, seed: u64) -> PointCloud {
+pub fn sample_surfaces(
+    scene: &Scene,
+    tris: &SceneTriangles,
+    density: f32,
+    seed: u64,
+) -> PointCloud {
     let mut r = ChaCha8Rng::seed_from_u64(seed ^ 0x67_7470_6f69_6e74);
     let mut positions = Vec::new();
     let mut normals = Vec::new();
@@ -43,13 +48,20 @@ pub fn sample_surfaces(scene: &Scene, tris: &SceneTriangles, density: f32, seed:
             instance.push(id);
         }
     }
-    PointCloud { positions, normals: Some(normals), instance: Some(instance), ..Default::default() }
+    PointCloud {
+        positions,
+        normals: Some(normals),
+        instance: Some(instance),
+        ..Default::default()
+    }
 }
 
 /// Is `p` (on object `id`) visible in `frame` rendered from `camera`? It must project inside the
 /// image onto a pixel showing the same object at the same depth (within 1 cm + 1% of depth).
 pub fn visible_in(p: &Point3<f32>, id: u16, camera: &Camera, frame: &Frame) -> bool {
-    let Some((px, z)) = camera.project_world(p) else { return false };
+    let Some((px, z)) = camera.project_world(p) else {
+        return false;
+    };
     let (u, v) = (px.x.floor(), px.y.floor());
     if u < 0.0 || v < 0.0 || u >= frame.width as f32 || v >= frame.height as f32 {
         return false;
@@ -67,12 +79,18 @@ pub fn seen_flags(cloud: &PointCloud, cameras: &[Camera], frames: &[Frame]) -> V
         .enumerate()
         .map(|(i, p)| {
             let id = ids.get(i).copied().unwrap_or(0) as u16;
-            cameras.iter().zip(frames).any(|(c, f)| visible_in(p, id, c, f))
+            cameras
+                .iter()
+                .zip(frames)
+                .any(|(c, f)| visible_in(p, id, c, f))
         })
         .collect()
 }
 
 /// The unit normal of a triangle (zero if degenerate).
 pub fn triangle_normal(c: &[Point3<f32>; 3]) -> Vector3<f32> {
-    (c[1] - c[0]).cross(&(c[2] - c[0])).try_normalize(1e-12).unwrap_or_default()
+    (c[1] - c[0])
+        .cross(&(c[2] - c[0]))
+        .try_normalize(1e-12)
+        .unwrap_or_default()
 }

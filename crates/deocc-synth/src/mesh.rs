@@ -110,7 +110,11 @@ pub fn cuboid(min: Point3<f32>, max: Point3<f32>) -> TriMesh {
 pub fn box_on(size: Vector3<f32>, center_xy: (f32, f32), z0: f32) -> TriMesh {
     cuboid(
         Point3::new(center_xy.0 - size.x / 2.0, center_xy.1 - size.y / 2.0, z0),
-        Point3::new(center_xy.0 + size.x / 2.0, center_xy.1 + size.y / 2.0, z0 + size.z),
+        Point3::new(
+            center_xy.0 + size.x / 2.0,
+            center_xy.1 + size.y / 2.0,
+            z0 + size.z,
+        ),
     )
 }
 
@@ -164,7 +168,14 @@ pub fn cylinder(r: f32, h: f32, z0: f32, segments: usize) -> TriMesh {
 
 /// A torus-like ring (for mug handles): a circle of radius `major` in the xz plane, tube `minor`,
 /// only the arc from `a0` to `a1` (radians).
-pub fn tube_arc(major: f32, minor: f32, a0: f32, a1: f32, segments: usize, sides: usize) -> TriMesh {
+pub fn tube_arc(
+    major: f32,
+    minor: f32,
+    a0: f32,
+    a1: f32,
+    segments: usize,
+    sides: usize,
+) -> TriMesh {
     let mut m = TriMesh::default();
     for i in 0..=segments {
         let a = a0 + (a1 - a0) * i as f32 / segments as f32;

@@ -46,7 +46,14 @@ pub struct PairConfig {
 
 impl Default for PairConfig {
     fn default() -> Self {
-        Self { resolution: 64, views_per_scene: 6, min_box_px: 24.0, margin: 0.2, min_visible_fraction: 0.08, keep_unoccluded: 0.3 }
+        Self {
+            resolution: 64,
+            views_per_scene: 6,
+            min_box_px: 24.0,
+            margin: 0.2,
+            min_visible_fraction: 0.08,
+            keep_unoccluded: 0.3,
+        }
     }
 }
 
@@ -63,7 +70,7 @@ pub struct PairSet {
     pub group: Vec<u32>,         // object identity across views
     pub category: Vec<u8>,       // Category as u8 (declaration order)
     pub held_out: Vec<u8>,
-    pub occlusion: Vec<f32>,     // 1 - visible / amodal, in the crop
+    pub occlusion: Vec<f32>, // 1 - visible / amodal, in the crop
 }
 
 impl PairSet {
@@ -95,13 +102,28 @@ impl PairSet {
 pub fn crop_camera(camera: &Camera, x0: f32, y0: f32, side: f32, res: u32) -> Result<Camera> {
     let k = &camera.intrinsics;
     let s = res as f32 / side;
-    let intrinsics = Intrinsics::new(k.fx() * s, k.fy() * s, (k.cx() - x0) * s, (k.cy() - y0) * s, res, res)?;
-    Ok(Camera { intrinsics, world_from_camera: camera.world_from_camera })
+    let intrinsics = Intrinsics::new(
+        k.fx() * s,
+        k.fy() * s,
+        (k.cx() - x0) * s,
+        (k.cy() - y0) * s,
+        res,
+        res,
+    )?;
+    Ok(Camera {
+        intrinsics,
+        world_from_camera: camera.world_from_camera,
+    })
 }
 
 /// The box (u0, v0, u1, v1) of an object's projected vertices; `None` if any is behind the camera.
 fn projected_box(camera: &Camera, scene: &Scene, object: usize) -> Option<(f32, f32, f32, f32)> {
-    let mut b = (f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY);
+    let mut b = (
+        f32::INFINITY,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NEG_INFINITY,
+    );
     for p in &scene.objects[object].mesh.vertices {
         let (px, _) = camera.project_world(p)?;
         b = (b.0.min(px.x), b.1.min(px.y), b.2.max(px.x), b.3.max(px.y));
@@ -120,38 +142,73 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
     let tris = SceneTriangles::new(scene);
     let res = config.resolution;
     let n = (res * res) as usize;
-    let mut out = PairSet { resolution: res, ..Default::default() };
+    let mut out = PairSet {
+        resolution: res,
+        ..Default::default()
+    };
     let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(scene.seed ^ 0x7061_6972);
     for camera in &scene.cameras {
-        let (w, h) = (camera.intrinsics.width() as f32, camera.intrinsics.height() as f32);
+        let (w, h) = (
+            camera.intrinsics.width() as f32,
+            camera.intrinsics.height() as f32,
+        );
         for (k, obj) in scene.objects.iter().enumerate() {
             if obj.category.is_structure() {
                 continue;
             }
-            let Some((u0, v0, u1, v1)) = projected_box(camera, scene, k) else { continue };
+            let Some((u0, v0, u1, v1)) = projected_box(camera, scene, k) else {
+                continue;
+            };
             let side = (u1 - u0).max(v1 - v0);
             if side < config.min_box_px || u0 < 0.0 || v0 < 0.0 || u1 >= w || v1 >= h {
                 continue;
             }
             let crop_side = side * (1.0 + config.margin);
             let (cx, cy) = ((u0 + u1) / 2.0, (v0 + v1) / 2.0);
-            let crop = crop_camera(camera, cx - crop_side / 2.0, cy - crop_side / 2.0, crop_side, res)?;
+            let crop = crop_camera(
+                camera,
+                cx - crop_side / 2.0,
+                cy - crop_side / 2.0,
+                crop_side,
+                res,
+            )?;
             let mut full = Frame::new(res, res);
             let inst = |ti: usize| scene.objects[tris.object[ti] as usize].instance_id;
             rasterize(&crop, &tris, 0..tris.corners.len(), &inst, &mut full);
             let mut alone = Frame::new(res, res);
-            rasterize(&crop, &tris, tris.object_ranges[k].clone(), &|_| obj.instance_id, &mut alone);
-            let visible: Vec<bool> = full.instance.iter().map(|&i| i == obj.instance_id).collect();
+            rasterize(
+                &crop,
+                &tris,
+                tris.object_ranges[k].clone(),
+                &|_| obj.instance_id,
+                &mut alone,
+            );
+            let visible: Vec<bool> = full
+                .instance
+                .iter()
+                .map(|&i| i == obj.instance_id)
+                .collect();
             let amodal: Vec<bool> = alone.instance.iter().map(|&i| i != 0).collect();
-            let (vis_px, amo_px) = (visible.iter().filter(|&&b| b).count(), amodal.iter().filter(|&&b| b).count());
-            if amo_px == 0 || (vis_px as f32) < config.min_visible_fraction * amo_px as f32 || vis_px < 8 {
+            let (vis_px, amo_px) = (
+                visible.iter().filter(|&&b| b).count(),
+                amodal.iter().filter(|&&b| b).count(),
+            );
+            if amo_px == 0
+                || (vis_px as f32) < config.min_visible_fraction * amo_px as f32
+                || vis_px < 8
+            {
                 continue;
             }
             let occlusion = 1.0 - vis_px as f32 / amo_px as f32;
             if occlusion < 0.02 && !r.random_bool(config.keep_unoccluded) {
                 continue;
             }
-            let m = median((0..n).filter(|&i| visible[i]).map(|i| full.depth_m[i]).collect());
+            let m = median(
+                (0..n)
+                    .filter(|&i| visible[i])
+                    .map(|i| full.depth_m[i])
+                    .collect(),
+            );
             let s = crop_side * m / camera.intrinsics.fx();
             let rgb = shade(&full, &crop, scene, &tris, [0, 0, 0]);
             let whole = shade(&alone, &crop, scene, &tris, [255, 255, 255]);
@@ -159,8 +216,20 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             out.whole_rgb.extend_from_slice(whole.as_raw());
             out.visible_mask.extend(visible.iter().map(|&b| b as u8));
             out.amodal_mask.extend(amodal.iter().map(|&b| b as u8));
-            out.visible_depth.extend((0..n).map(|i| if visible[i] { (full.depth_m[i] - m) / s } else { 0.0 }));
-            out.whole_depth.extend((0..n).map(|i| if amodal[i] { (alone.depth_m[i] - m) / s } else { 0.0 }));
+            out.visible_depth.extend((0..n).map(|i| {
+                if visible[i] {
+                    (full.depth_m[i] - m) / s
+                } else {
+                    0.0
+                }
+            }));
+            out.whole_depth.extend((0..n).map(|i| {
+                if amodal[i] {
+                    (alone.depth_m[i] - m) / s
+                } else {
+                    0.0
+                }
+            }));
             out.group.push(group_base + obj.instance_id as u32);
             out.category.push(obj.category as u8);
             out.held_out.push(obj.category.is_held_out() as u8);
@@ -218,42 +287,102 @@ fn bytes_of_u32(v: &[u32]) -> Vec<u8> {
 pub fn save_pairs(path: &Path, set: &PairSet) -> Result<()> {
     let (n, r) = (set.len(), set.resolution as usize);
     let f = [
-        ("crop_rgb", Dtype::U8, vec![n, r, r, 3], set.crop_rgb.clone()),
-        ("visible_mask", Dtype::U8, vec![n, r, r], set.visible_mask.clone()),
-        ("visible_depth", Dtype::F32, vec![n, r, r], bytes_of_f32(&set.visible_depth)),
-        ("whole_rgb", Dtype::U8, vec![n, r, r, 3], set.whole_rgb.clone()),
-        ("amodal_mask", Dtype::U8, vec![n, r, r], set.amodal_mask.clone()),
-        ("whole_depth", Dtype::F32, vec![n, r, r], bytes_of_f32(&set.whole_depth)),
+        (
+            "crop_rgb",
+            Dtype::U8,
+            vec![n, r, r, 3],
+            set.crop_rgb.clone(),
+        ),
+        (
+            "visible_mask",
+            Dtype::U8,
+            vec![n, r, r],
+            set.visible_mask.clone(),
+        ),
+        (
+            "visible_depth",
+            Dtype::F32,
+            vec![n, r, r],
+            bytes_of_f32(&set.visible_depth),
+        ),
+        (
+            "whole_rgb",
+            Dtype::U8,
+            vec![n, r, r, 3],
+            set.whole_rgb.clone(),
+        ),
+        (
+            "amodal_mask",
+            Dtype::U8,
+            vec![n, r, r],
+            set.amodal_mask.clone(),
+        ),
+        (
+            "whole_depth",
+            Dtype::F32,
+            vec![n, r, r],
+            bytes_of_f32(&set.whole_depth),
+        ),
         ("group", Dtype::U32, vec![n], bytes_of_u32(&set.group)),
         ("category", Dtype::U8, vec![n], set.category.clone()),
         ("held_out", Dtype::U8, vec![n], set.held_out.clone()),
-        ("occlusion", Dtype::F32, vec![n], bytes_of_f32(&set.occlusion)),
+        (
+            "occlusion",
+            Dtype::F32,
+            vec![n],
+            bytes_of_f32(&set.occlusion),
+        ),
     ];
     let views: Vec<(&str, TensorView)> = f
         .iter()
-        .map(|(name, dt, shape, data)| TensorView::new(*dt, shape.clone(), data).map(|v| (*name, v)))
+        .map(|(name, dt, shape, data)| {
+            TensorView::new(*dt, shape.clone(), data).map(|v| (*name, v))
+        })
         .collect::<std::result::Result<_, _>>()
-        .map_err(|e| SynthError::Data { path: path.display().to_string(), msg: e.to_string() })?;
-    let bytes = safetensors::serialize(views, None).map_err(|e| SynthError::Data { path: path.display().to_string(), msg: e.to_string() })?;
+        .map_err(|e| SynthError::Data {
+            path: path.display().to_string(),
+            msg: e.to_string(),
+        })?;
+    let bytes = safetensors::serialize(views, None).map_err(|e| SynthError::Data {
+        path: path.display().to_string(),
+        msg: e.to_string(),
+    })?;
     deocc_io::atomic::write_bytes_atomic(path, &bytes)?;
     Ok(())
 }
 
 /// Loads pairs saved by [`save_pairs`], checking every tensor's type and shape.
 pub fn load_pairs(path: &Path) -> Result<PairSet> {
-    let err = |msg: String| SynthError::Data { path: path.display().to_string(), msg };
+    let err = |msg: String| SynthError::Data {
+        path: path.display().to_string(),
+        msg,
+    };
     let bytes = std::fs::read(path).map_err(|e| deocc_io::IoError::new(path, e))?;
-    let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| err(format!("not a safetensors file: {e}")))?;
+    let st = safetensors::SafeTensors::deserialize(&bytes)
+        .map_err(|e| err(format!("not a safetensors file: {e}")))?;
     let get = |name: &str, dt: Dtype| -> Result<(Vec<usize>, &[u8])> {
-        let t = st.tensor(name).map_err(|_| err(format!("missing tensor '{name}'")))?;
+        let t = st
+            .tensor(name)
+            .map_err(|_| err(format!("missing tensor '{name}'")))?;
         if t.dtype() != dt {
-            return Err(err(format!("tensor '{name}' is {:?}, expected {dt:?}", t.dtype())));
+            return Err(err(format!(
+                "tensor '{name}' is {:?}, expected {dt:?}",
+                t.dtype()
+            )));
         }
         Ok((t.shape().to_vec(), t.data()))
     };
-    let f32s = |b: &[u8]| b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect::<Vec<f32>>();
+    let f32s = |b: &[u8]| {
+        b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect::<Vec<f32>>()
+    };
     let (shape, crop_rgb) = get("crop_rgb", Dtype::U8)?;
-    let [n, r, r2, 3] = shape[..] else { return Err(err(format!("crop_rgb has shape {shape:?}, expected (N, R, R, 3)"))) };
+    let [n, r, r2, 3] = shape[..] else {
+        return Err(err(format!(
+            "crop_rgb has shape {shape:?}, expected (N, R, R, 3)"
+        )));
+    };
     if r != r2 {
         return Err(err("crops are not square".into()));
     }
@@ -265,7 +394,11 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
         whole_rgb: get("whole_rgb", Dtype::U8)?.1.to_vec(),
         amodal_mask: get("amodal_mask", Dtype::U8)?.1.to_vec(),
         whole_depth: f32s(get("whole_depth", Dtype::F32)?.1),
-        group: get("group", Dtype::U32)?.1.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+        group: get("group", Dtype::U32)?
+            .1
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
         category: get("category", Dtype::U8)?.1.to_vec(),
         held_out: get("held_out", Dtype::U8)?.1.to_vec(),
         occlusion: f32s(get("occlusion", Dtype::F32)?.1),

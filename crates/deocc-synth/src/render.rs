@@ -24,7 +24,13 @@ pub struct Frame {
 impl Frame {
     pub fn new(width: u32, height: u32) -> Self {
         let n = width as usize * height as usize;
-        Self { width, height, depth_m: vec![0.0; n], instance: vec![0; n], triangle: vec![u32::MAX; n] }
+        Self {
+            width,
+            height,
+            depth_m: vec![0.0; n],
+            instance: vec![0; n],
+            triangle: vec![u32::MAX; n],
+        }
     }
 }
 
@@ -40,13 +46,20 @@ pub struct SceneTriangles {
 
 impl SceneTriangles {
     pub fn new(scene: &Scene) -> Self {
-        let mut s = SceneTriangles { corners: Vec::new(), normals: Vec::new(), object: Vec::new(), object_ranges: Vec::new() };
+        let mut s = SceneTriangles {
+            corners: Vec::new(),
+            normals: Vec::new(),
+            object: Vec::new(),
+            object_ranges: Vec::new(),
+        };
         for (k, o) in scene.objects.iter().enumerate() {
             let start = s.corners.len();
             for i in 0..o.mesh.triangles.len() {
                 let t = o.mesh.triangle(i);
                 let n = (t[1] - t[0]).cross(&(t[2] - t[0]));
-                let Some(n) = n.try_normalize(1e-12) else { continue };
+                let Some(n) = n.try_normalize(1e-12) else {
+                    continue;
+                };
                 s.corners.push(t);
                 s.normals.push(n);
                 s.object.push(k as u16);
@@ -58,7 +71,13 @@ impl SceneTriangles {
 }
 
 /// Rasterises the triangles in `range` (indices into `tris`) into `frame`.
-pub fn rasterize(camera: &Camera, tris: &SceneTriangles, range: std::ops::Range<usize>, instance_of: &dyn Fn(usize) -> u16, frame: &mut Frame) {
+pub fn rasterize(
+    camera: &Camera,
+    tris: &SceneTriangles,
+    range: std::ops::Range<usize>,
+    instance_of: &dyn Fn(usize) -> u16,
+    frame: &mut Frame,
+) {
     let k = &camera.intrinsics;
     let cam_from_world = camera.world_from_camera.inverse();
     let (w, h) = (frame.width as i32, frame.height as i32);
@@ -86,16 +105,33 @@ pub fn rasterize(camera: &Camera, tris: &SceneTriangles, range: std::ops::Range<
                 }
             }
         }
-        let screen: Vec<(f32, f32, f32)> = poly.iter().map(|q| (fx * q.x / q.z + cx, fy * q.y / q.z + cy, 1.0 / q.z)).collect();
+        let screen: Vec<(f32, f32, f32)> = poly
+            .iter()
+            .map(|q| (fx * q.x / q.z + cx, fy * q.y / q.z + cy, 1.0 / q.z))
+            .collect();
         let inst = instance_of(ti);
         for j in 1..screen.len().saturating_sub(1) {
-            raster_triangle([screen[0], screen[j], screen[j + 1]], w, h, ti as u32, inst, frame);
+            raster_triangle(
+                [screen[0], screen[j], screen[j + 1]],
+                w,
+                h,
+                ti as u32,
+                inst,
+                frame,
+            );
         }
     }
 }
 
 #[inline]
-fn raster_triangle(s: [(f32, f32, f32); 3], w: i32, h: i32, tri: u32, inst: u16, frame: &mut Frame) {
+fn raster_triangle(
+    s: [(f32, f32, f32); 3],
+    w: i32,
+    h: i32,
+    tri: u32,
+    inst: u16,
+    frame: &mut Frame,
+) {
     let min_x = s.iter().map(|v| v.0).fold(f32::INFINITY, f32::min);
     let max_x = s.iter().map(|v| v.0).fold(f32::NEG_INFINITY, f32::max);
     let min_y = s.iter().map(|v| v.1).fold(f32::INFINITY, f32::min);
@@ -112,7 +148,9 @@ fn raster_triangle(s: [(f32, f32, f32); 3], w: i32, h: i32, tri: u32, inst: u16,
         return;
     }
     let inv_area = 1.0 / area;
-    let edge = |a: (f32, f32, f32), b: (f32, f32, f32), x: f32, y: f32| (b.0 - a.0) * (y - a.1) - (b.1 - a.1) * (x - a.0);
+    let edge = |a: (f32, f32, f32), b: (f32, f32, f32), x: f32, y: f32| {
+        (b.0 - a.0) * (y - a.1) - (b.1 - a.1) * (x - a.0)
+    };
     for v in v0..=v1 {
         let y = v as f32 + 0.5;
         let row = v as usize * w as usize;
@@ -147,11 +185,22 @@ pub fn render_scene(camera: &Camera, scene: &Scene, tris: &SceneTriangles) -> Fr
 }
 
 /// Renders one object alone (its amodal view).
-pub fn render_object(camera: &Camera, scene: &Scene, tris: &SceneTriangles, object_index: usize) -> Frame {
+pub fn render_object(
+    camera: &Camera,
+    scene: &Scene,
+    tris: &SceneTriangles,
+    object_index: usize,
+) -> Frame {
     let k = &camera.intrinsics;
     let mut frame = Frame::new(k.width(), k.height());
     let id = scene.objects[object_index].instance_id;
-    rasterize(camera, tris, tris.object_ranges[object_index].clone(), &|_| id, &mut frame);
+    rasterize(
+        camera,
+        tris,
+        tris.object_ranges[object_index].clone(),
+        &|_| id,
+        &mut frame,
+    );
     frame
 }
 
@@ -161,7 +210,10 @@ fn light() -> Vector3<f32> {
 }
 
 fn hash3(x: i32, y: i32, z: i32, seed: u32) -> f32 {
-    let mut h = (x as u32).wrapping_mul(0x8da6_b343) ^ (y as u32).wrapping_mul(0xd816_3841) ^ (z as u32).wrapping_mul(0xcb1a_b31f) ^ seed.wrapping_mul(0x9e37_79b9);
+    let mut h = (x as u32).wrapping_mul(0x8da6_b343)
+        ^ (y as u32).wrapping_mul(0xd816_3841)
+        ^ (z as u32).wrapping_mul(0xcb1a_b31f)
+        ^ seed.wrapping_mul(0x9e37_79b9);
     h ^= h >> 15;
     h = h.wrapping_mul(0x2c1b_3c6d);
     h ^= h >> 12;
@@ -177,7 +229,9 @@ fn value_noise(p: Vector3<f32>, seed: u32) -> f32 {
     for dz in 0..2 {
         for dy in 0..2 {
             for dx in 0..2 {
-                let wgt = (if dx == 1 { s.x } else { 1.0 - s.x }) * (if dy == 1 { s.y } else { 1.0 - s.y }) * (if dz == 1 { s.z } else { 1.0 - s.z });
+                let wgt = (if dx == 1 { s.x } else { 1.0 - s.x })
+                    * (if dy == 1 { s.y } else { 1.0 - s.y })
+                    * (if dz == 1 { s.z } else { 1.0 - s.z });
                 acc += wgt * hash3(x + dx, y + dy, z + dz, seed);
             }
         }
@@ -189,7 +243,9 @@ fn value_noise(p: Vector3<f32>, seed: u32) -> f32 {
 pub fn albedo(app: &Appearance, p: &Point3<f32>, seed: u32) -> [f32; 3] {
     let mix = match app.texture {
         Texture::Solid => 0.0,
-        Texture::Stripes { period_m, axis } => ((p[axis as usize % 3] / period_m).floor() as i64).rem_euclid(2) as f32,
+        Texture::Stripes { period_m, axis } => {
+            ((p[axis as usize % 3] / period_m).floor() as i64).rem_euclid(2) as f32
+        }
         Texture::Checker { period_m } => {
             let q = p.coords / period_m;
             ((q.x.floor() + q.y.floor() + q.z.floor()) as i64).rem_euclid(2) as f32
@@ -201,7 +257,13 @@ pub fn albedo(app: &Appearance, p: &Point3<f32>, seed: u32) -> [f32; 3] {
 }
 
 /// Shades a frame: Lambertian with ambient light; `background` for empty pixels.
-pub fn shade(frame: &Frame, camera: &Camera, scene: &Scene, tris: &SceneTriangles, background: [u8; 3]) -> RgbImage {
+pub fn shade(
+    frame: &Frame,
+    camera: &Camera,
+    scene: &Scene,
+    tris: &SceneTriangles,
+    background: [u8; 3],
+) -> RgbImage {
     let mut img = RgbImage::from_pixel(frame.width, frame.height, image::Rgb(background));
     let l = light();
     let eye = camera.center();
@@ -210,7 +272,10 @@ pub fn shade(frame: &Frame, camera: &Camera, scene: &Scene, tris: &SceneTriangle
         if ti == u32::MAX {
             continue;
         }
-        let (u, v) = ((i % frame.width as usize) as u32, (i / frame.width as usize) as u32);
+        let (u, v) = (
+            (i % frame.width as usize) as u32,
+            (i / frame.width as usize) as u32,
+        );
         let p = camera.unproject_pixel(u, v, frame.depth_m[i]);
         let obj = tris.object[ti as usize] as usize;
         let mut n = tris.normals[ti as usize];
@@ -236,7 +301,10 @@ pub fn add_sensor_noise(frame: &mut Frame, camera: &Camera, tris: &SceneTriangle
             continue;
         }
         let z = frame.depth_m[i];
-        let (u, v) = ((i % frame.width as usize) as u32, (i / frame.width as usize) as u32);
+        let (u, v) = (
+            (i % frame.width as usize) as u32,
+            (i / frame.width as usize) as u32,
+        );
         let p = camera.unproject_pixel(u, v, z);
         let ray = (p - eye).normalize();
         let cos = tris.normals[ti as usize].dot(&ray).abs();

@@ -136,11 +136,22 @@ fn appearance(r: &mut impl Rng) -> Appearance {
     let color_b = PALETTE[r.random_range(0..PALETTE.len())];
     let texture = match r.random_range(0..4) {
         0 => Texture::Solid,
-        1 => Texture::Stripes { period_m: r.random_range(0.01..0.05), axis: r.random_range(0..3) },
-        2 => Texture::Checker { period_m: r.random_range(0.02..0.08) },
-        _ => Texture::Noise { period_m: r.random_range(0.02..0.1) },
+        1 => Texture::Stripes {
+            period_m: r.random_range(0.01..0.05),
+            axis: r.random_range(0..3),
+        },
+        2 => Texture::Checker {
+            period_m: r.random_range(0.02..0.08),
+        },
+        _ => Texture::Noise {
+            period_m: r.random_range(0.02..0.1),
+        },
     };
-    Appearance { color_a, color_b, texture }
+    Appearance {
+        color_a,
+        color_b,
+        texture,
+    }
 }
 
 fn place(mesh: TriMesh, x: f32, y: f32, z: f32, yaw: f32) -> TriMesh {
@@ -164,7 +175,10 @@ fn find_spot(
     for _ in 0..60 {
         let x = center.0 + r.random_range(-(half.0 - radius)..(half.0 - radius));
         let y = center.1 + r.random_range(-(half.1 - radius)..(half.1 - radius));
-        if taken.iter().all(|&(tx, ty, tr)| (tx - x).hypot(ty - y) > tr + radius + 0.005) {
+        if taken
+            .iter()
+            .all(|&(tx, ty, tr)| (tx - x).hypot(ty - y) > tr + radius + 0.005)
+        {
             return Some((x, y));
         }
     }
@@ -179,20 +193,62 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
     let mut objects = Vec::new();
     let add = |objects: &mut Vec<SceneObject>, category, mesh, app| {
         let instance_id = objects.len() as u16 + 1;
-        objects.push(SceneObject { instance_id, category, mesh, appearance: app });
+        objects.push(SceneObject {
+            instance_id,
+            category,
+            mesh,
+            appearance: app,
+        });
     };
-    let floor_app = Appearance { color_a: [150, 140, 130], color_b: [120, 110, 100], texture: Texture::Checker { period_m: 0.3 } };
-    add(&mut objects, Category::Floor, cuboid(Point3::new(-ROOM, -ROOM, -0.02), Point3::new(ROOM, ROOM, 0.0)), floor_app);
-    let wall_app = Appearance { color_a: [215, 210, 200], color_b: [200, 195, 185], texture: Texture::Noise { period_m: 0.5 } };
-    add(&mut objects, Category::Wall, cuboid(Point3::new(ROOM, -ROOM, 0.0), Point3::new(ROOM + 0.05, ROOM, 2.5)), wall_app);
-    add(&mut objects, Category::Wall, cuboid(Point3::new(-ROOM, ROOM, 0.0), Point3::new(ROOM, ROOM + 0.05, 2.5)), wall_app);
+    let floor_app = Appearance {
+        color_a: [150, 140, 130],
+        color_b: [120, 110, 100],
+        texture: Texture::Checker { period_m: 0.3 },
+    };
+    add(
+        &mut objects,
+        Category::Floor,
+        cuboid(
+            Point3::new(-ROOM, -ROOM, -0.02),
+            Point3::new(ROOM, ROOM, 0.0),
+        ),
+        floor_app,
+    );
+    let wall_app = Appearance {
+        color_a: [215, 210, 200],
+        color_b: [200, 195, 185],
+        texture: Texture::Noise { period_m: 0.5 },
+    };
+    add(
+        &mut objects,
+        Category::Wall,
+        cuboid(
+            Point3::new(ROOM, -ROOM, 0.0),
+            Point3::new(ROOM + 0.05, ROOM, 2.5),
+        ),
+        wall_app,
+    );
+    add(
+        &mut objects,
+        Category::Wall,
+        cuboid(
+            Point3::new(-ROOM, ROOM, 0.0),
+            Point3::new(ROOM, ROOM + 0.05, 2.5),
+        ),
+        wall_app,
+    );
 
     // The table, near the room centre, rotated a little.
     let (table, size) = shapes::table(&mut r);
     let (tx, ty) = (r.random_range(-0.3..0.3), r.random_range(-0.3..0.3));
     let table_yaw = r.random_range(-0.3..0.3f32);
     let app = appearance(&mut r);
-    add(&mut objects, Category::Table, place(table.mesh, tx, ty, 0.0, table_yaw), app);
+    add(
+        &mut objects,
+        Category::Table,
+        place(table.mesh, tx, ty, 0.0, table_yaw),
+        app,
+    );
     let to_world = |x: f32, y: f32| {
         let (c, s) = (table_yaw.cos(), table_yaw.sin());
         (tx + c * x - s * y, ty + s * x + c * y)
@@ -205,28 +261,57 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
         let side = if k % 2 == 0 { -1.0 } else { 1.0 };
         let along = r.random_range(-size.x * 0.3..size.x * 0.3);
         let pushed_in = r.random_bool(0.5);
-        let off = size.y / 2.0 + if pushed_in { -0.05 } else { r.random_range(0.15..0.35) };
+        let off = size.y / 2.0
+            + if pushed_in {
+                -0.05
+            } else {
+                r.random_range(0.15..0.35)
+            };
         let (x, y) = to_world(along, side * off);
         // Chair back away from the table: the chair faces -y in its frame.
-        let yaw = table_yaw + if side < 0.0 { 0.0 } else { std::f32::consts::PI } + r.random_range(-0.2..0.2);
+        let yaw = table_yaw
+            + if side < 0.0 {
+                0.0
+            } else {
+                std::f32::consts::PI
+            }
+            + r.random_range(-0.2..0.2);
         let app = appearance(&mut r);
-        add(&mut objects, Category::Chair, place(chair.mesh, x, y, 0.0, yaw), app);
+        add(
+            &mut objects,
+            Category::Chair,
+            place(chair.mesh, x, y, 0.0, yaw),
+            app,
+        );
     }
 
     // Things on the table.
     let pool: Vec<Category> = if config.held_out_shapes {
-        Category::TABLETOP_TRAIN.iter().chain(&Category::TABLETOP_HELD_OUT).copied().collect()
+        Category::TABLETOP_TRAIN
+            .iter()
+            .chain(&Category::TABLETOP_HELD_OUT)
+            .copied()
+            .collect()
     } else {
         Category::TABLETOP_TRAIN.to_vec()
     };
     let user_meshes = load_user_meshes(config)?;
-    let n_objects = r.random_range(config.tabletop_objects_min..=config.tabletop_objects_max.max(config.tabletop_objects_min));
+    let n_objects = r.random_range(
+        config.tabletop_objects_min..=config.tabletop_objects_max.max(config.tabletop_objects_min),
+    );
     let mut taken = Vec::new();
     let half = (size.x / 2.0 - 0.03, size.y / 2.0 - 0.03);
     for k in 0..n_objects + user_meshes.len() {
         let (category, shape) = if k >= n_objects {
             let m = &user_meshes[k - n_objects];
-            (Category::UserMesh, shapes::Shape { mesh: m.0.clone(), footprint_radius: m.1, height: m.2 })
+            (
+                Category::UserMesh,
+                shapes::Shape {
+                    mesh: m.0.clone(),
+                    footprint_radius: m.1,
+                    height: m.2,
+                },
+            )
         } else {
             // Held-out shapes appear with a boosted rate in test scenes so their figures mean something.
             let c = if config.held_out_shapes && r.random_bool(0.25) {
@@ -236,14 +321,20 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
             };
             (c, shapes::tabletop(c, &mut r))
         };
-        let Some((x, y)) = find_spot(&mut r, half, (0.0, 0.0), shape.footprint_radius, &taken) else {
+        let Some((x, y)) = find_spot(&mut r, half, (0.0, 0.0), shape.footprint_radius, &taken)
+        else {
             continue;
         };
         taken.push((x, y, shape.footprint_radius));
         let (wx, wy) = to_world(x, y);
         let yaw = r.random_range(0.0..std::f32::consts::TAU);
         let app = appearance(&mut r);
-        add(&mut objects, category, place(shape.mesh, wx, wy, size.z, yaw), app);
+        add(
+            &mut objects,
+            category,
+            place(shape.mesh, wx, wy, size.z, yaw),
+            app,
+        );
     }
 
     // A shelf against the back wall (y = ROOM), with things on its boards.
@@ -252,7 +343,12 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
         let sx = r.random_range(-1.2..1.2f32);
         let sy = ROOM - ssize.y / 2.0 - 0.01;
         let app = appearance(&mut r);
-        add(&mut objects, Category::Shelf, place(shelf.mesh, sx, sy, 0.0, 0.0), app);
+        add(
+            &mut objects,
+            Category::Shelf,
+            place(shelf.mesh, sx, sy, 0.0, 0.0),
+            app,
+        );
         for &z in &tops[..tops.len() - 1] {
             let mut taken = Vec::new();
             for _ in 0..r.random_range(1..4) {
@@ -263,20 +359,32 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
                     continue;
                 }
                 let half = (ssize.x / 2.0 - 0.03, ssize.y / 2.0 - 0.03);
-                let Some((x, y)) = find_spot(&mut r, half, (0.0, 0.0), shape.footprint_radius, &taken) else {
+                let Some((x, y)) =
+                    find_spot(&mut r, half, (0.0, 0.0), shape.footprint_radius, &taken)
+                else {
                     continue;
                 };
                 taken.push((x, y, shape.footprint_radius));
                 let yaw = r.random_range(0.0..std::f32::consts::TAU);
                 let app = appearance(&mut r);
-                add(&mut objects, c, place(shape.mesh, sx + x, sy + y, z, yaw), app);
+                add(
+                    &mut objects,
+                    c,
+                    place(shape.mesh, sx + x, sy + y, z, yaw),
+                    app,
+                );
             }
         }
     }
 
     let focus = Point3::new(tx, ty, size.z);
     let cameras = camera_path(config, &mut r, &focus)?;
-    Ok(Scene { seed, objects, cameras, focus })
+    Ok(Scene {
+        seed,
+        objects,
+        cameras,
+        focus,
+    })
 }
 
 fn load_user_meshes(config: &SceneConfig) -> Result<Vec<(TriMesh, f32, f32)>, SynthError> {
@@ -285,11 +393,19 @@ fn load_user_meshes(config: &SceneConfig) -> Result<Vec<(TriMesh, f32, f32)>, Sy
         .iter()
         .map(|u| {
             let m = deocc_io::mesh::read_mesh(&u.path)?;
-            let mesh = TriMesh { vertices: m.vertices.positions, triangles: m.triangles };
-            let (lo, hi) = mesh.bounds().ok_or_else(|| SynthError::Config(format!("{}: empty mesh", u.path.display())))?;
+            let mesh = TriMesh {
+                vertices: m.vertices.positions,
+                triangles: m.triangles,
+            };
+            let (lo, hi) = mesh
+                .bounds()
+                .ok_or_else(|| SynthError::Config(format!("{}: empty mesh", u.path.display())))?;
             let extent = (hi - lo).max();
             if extent <= 0.0 || !(u.size_m > 0.0) {
-                return Err(SynthError::Config(format!("{}: degenerate mesh or size", u.path.display())));
+                return Err(SynthError::Config(format!(
+                    "{}: degenerate mesh or size",
+                    u.path.display()
+                )));
             }
             let s = u.size_m / extent;
             let c = nalgebra::center(&lo, &hi);
@@ -302,7 +418,11 @@ fn load_user_meshes(config: &SceneConfig) -> Result<Vec<(TriMesh, f32, f32)>, Sy
         .collect()
 }
 
-fn camera_path(config: &SceneConfig, r: &mut impl Rng, focus: &Point3<f32>) -> Result<Vec<Camera>, SynthError> {
+fn camera_path(
+    config: &SceneConfig,
+    r: &mut impl Rng,
+    focus: &Point3<f32>,
+) -> Result<Vec<Camera>, SynthError> {
     let intrinsics = Intrinsics::from_fov(config.width, config.height, config.hfov_deg)?;
     // Cameras stay on the open side of the room (walls at +x and +y).
     let center_az = r.random_range(200f32..250.0).to_radians();
@@ -316,12 +436,28 @@ fn camera_path(config: &SceneConfig, r: &mut impl Rng, focus: &Point3<f32>) -> R
     let height = r.random_range(1.0..1.6f32);
     (0..n)
         .map(|i| {
-            let t = if n == 1 { 0.5 } else { i as f32 / (n - 1) as f32 };
+            let t = if n == 1 {
+                0.5
+            } else {
+                i as f32 / (n - 1) as f32
+            };
             let az = center_az + span * (t - 0.5);
             let d = dist + r.random_range(-0.1..0.1);
-            let eye = Point3::new(focus.x + d * az.cos(), focus.y + d * az.sin(), height + r.random_range(-0.05..0.05));
-            let target = focus + Vector3::new(r.random_range(-0.1..0.1), r.random_range(-0.1..0.1), r.random_range(-0.1..0.05));
-            Ok(Camera { intrinsics, world_from_camera: look_at(&eye, &target, &Vector3::z())? })
+            let eye = Point3::new(
+                focus.x + d * az.cos(),
+                focus.y + d * az.sin(),
+                height + r.random_range(-0.05..0.05),
+            );
+            let target = focus
+                + Vector3::new(
+                    r.random_range(-0.1..0.1),
+                    r.random_range(-0.1..0.1),
+                    r.random_range(-0.1..0.05),
+                );
+            Ok(Camera {
+                intrinsics,
+                world_from_camera: look_at(&eye, &target, &Vector3::z())?,
+            })
         })
         .collect()
 }

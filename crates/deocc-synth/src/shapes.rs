@@ -93,7 +93,10 @@ pub fn table(r: &mut impl Rng) -> (Shape, Vector3<f32>) {
     let inset = u(r, 0.03, 0.1);
     let mut parts = vec![box_on(Vector3::new(w, d, t), (0.0, 0.0), h - t)];
     for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
-        let c = (sx * (w / 2.0 - inset - leg / 2.0), sy * (d / 2.0 - inset - leg / 2.0));
+        let c = (
+            sx * (w / 2.0 - inset - leg / 2.0),
+            sy * (d / 2.0 - inset - leg / 2.0),
+        );
         parts.push(box_on(Vector3::new(leg, leg, h - t), c, 0.0));
     }
     (
@@ -124,9 +127,17 @@ pub fn chair(r: &mut impl Rng) -> Shape {
         parts.push(box_on(Vector3::new(w, 0.03, back_h), (0.0, back_y), seat_h));
     } else {
         for sx in [-1.0, 1.0] {
-            parts.push(box_on(Vector3::new(leg, 0.03, back_h), (sx * (w - leg) / 2.0, back_y), seat_h));
+            parts.push(box_on(
+                Vector3::new(leg, 0.03, back_h),
+                (sx * (w - leg) / 2.0, back_y),
+                seat_h,
+            ));
         }
-        parts.push(box_on(Vector3::new(w, 0.03, 0.08), (0.0, back_y), seat_h + back_h - 0.08));
+        parts.push(box_on(
+            Vector3::new(w, 0.03, 0.08),
+            (0.0, back_y),
+            seat_h + back_h - 0.08,
+        ));
     }
     Shape {
         mesh: TriMesh::merged(&parts),
@@ -142,14 +153,26 @@ pub fn shelf(r: &mut impl Rng) -> (Shape, Vector3<f32>, Vec<f32>) {
     let t = 0.02;
     let levels = r.random_range(3..5usize);
     let mut parts = vec![
-        cuboid(Point3::new(-w / 2.0, -d / 2.0, 0.0), Point3::new(-w / 2.0 + t, d / 2.0, h)),
-        cuboid(Point3::new(w / 2.0 - t, -d / 2.0, 0.0), Point3::new(w / 2.0, d / 2.0, h)),
-        cuboid(Point3::new(-w / 2.0, d / 2.0 - t, 0.0), Point3::new(w / 2.0, d / 2.0, h)),
+        cuboid(
+            Point3::new(-w / 2.0, -d / 2.0, 0.0),
+            Point3::new(-w / 2.0 + t, d / 2.0, h),
+        ),
+        cuboid(
+            Point3::new(w / 2.0 - t, -d / 2.0, 0.0),
+            Point3::new(w / 2.0, d / 2.0, h),
+        ),
+        cuboid(
+            Point3::new(-w / 2.0, d / 2.0 - t, 0.0),
+            Point3::new(w / 2.0, d / 2.0, h),
+        ),
     ];
     let mut tops = Vec::new();
     for k in 0..levels {
         let z = 0.05 + (h - 0.05 - t) * k as f32 / (levels - 1) as f32;
-        parts.push(cuboid(Point3::new(-w / 2.0 + t, -d / 2.0, z), Point3::new(w / 2.0 - t, d / 2.0 - t, z + t)));
+        parts.push(cuboid(
+            Point3::new(-w / 2.0 + t, -d / 2.0, z),
+            Point3::new(w / 2.0 - t, d / 2.0 - t, z + t),
+        ));
         tops.push(z + t);
     }
     (
@@ -168,74 +191,147 @@ pub fn tabletop(category: Category, r: &mut impl Rng) -> Shape {
     match category {
         Category::Box => {
             let s = Vector3::new(u(r, 0.06, 0.25), u(r, 0.06, 0.2), u(r, 0.05, 0.25));
-            Shape { footprint_radius: (s.x * s.x + s.y * s.y).sqrt() / 2.0, height: s.z, mesh: box_on(s, (0.0, 0.0), 0.0) }
+            Shape {
+                footprint_radius: (s.x * s.x + s.y * s.y).sqrt() / 2.0,
+                height: s.z,
+                mesh: box_on(s, (0.0, 0.0), 0.0),
+            }
         }
         Category::Book => {
             // Standing upright: thin in x.
             let s = Vector3::new(u(r, 0.02, 0.05), u(r, 0.13, 0.22), u(r, 0.18, 0.28));
-            Shape { footprint_radius: (s.x * s.x + s.y * s.y).sqrt() / 2.0, height: s.z, mesh: box_on(s, (0.0, 0.0), 0.0) }
+            Shape {
+                footprint_radius: (s.x * s.x + s.y * s.y).sqrt() / 2.0,
+                height: s.z,
+                mesh: box_on(s, (0.0, 0.0), 0.0),
+            }
         }
         Category::Can => {
             let (rad, h) = (u(r, 0.03, 0.045), u(r, 0.10, 0.16));
-            Shape { footprint_radius: rad, height: h, mesh: cylinder(rad, h, 0.0, SEG) }
+            Shape {
+                footprint_radius: rad,
+                height: h,
+                mesh: cylinder(rad, h, 0.0, SEG),
+            }
         }
         Category::Jar => {
             let (rad, h) = (u(r, 0.04, 0.07), u(r, 0.10, 0.20));
             let lid = rad * 0.9;
-            let m = lathe(&[(rad, 0.0), (rad, h * 0.85), (lid, h * 0.87), (lid, h)], SEG, true, true);
-            Shape { footprint_radius: rad, height: h, mesh: m }
+            let m = lathe(
+                &[(rad, 0.0), (rad, h * 0.85), (lid, h * 0.87), (lid, h)],
+                SEG,
+                true,
+                true,
+            );
+            Shape {
+                footprint_radius: rad,
+                height: h,
+                mesh: m,
+            }
         }
         Category::Bottle => {
             let (rad, h) = (u(r, 0.03, 0.05), u(r, 0.2, 0.32));
             let neck = rad * u(r, 0.3, 0.45);
             let body = h * u(r, 0.55, 0.7);
             let m = lathe(
-                &[(rad, 0.0), (rad, body), (neck, body + (h - body) * 0.5), (neck, h)],
+                &[
+                    (rad, 0.0),
+                    (rad, body),
+                    (neck, body + (h - body) * 0.5),
+                    (neck, h),
+                ],
                 SEG,
                 true,
                 true,
             );
-            Shape { footprint_radius: rad, height: h, mesh: m }
+            Shape {
+                footprint_radius: rad,
+                height: h,
+                mesh: m,
+            }
         }
         Category::Mug => {
             let (rad, h) = (u(r, 0.035, 0.05), u(r, 0.08, 0.12));
             let wall = 0.006;
             // Outer wall, rim, inner wall down to an inner bottom.
-            let body = lathe(&[(rad, 0.0), (rad, h), (rad - wall, h), (rad - wall, wall)], SEG, true, true);
-            let handle = tube_arc(h * 0.3, 0.008, -1.4, 1.4, 10, 6).translated(Vector3::new(rad, 0.0, h * 0.5));
-            Shape { footprint_radius: rad + h * 0.3, height: h, mesh: TriMesh::merged(&[body, handle]) }
+            let body = lathe(
+                &[(rad, 0.0), (rad, h), (rad - wall, h), (rad - wall, wall)],
+                SEG,
+                true,
+                true,
+            );
+            let handle = tube_arc(h * 0.3, 0.008, -1.4, 1.4, 10, 6).translated(Vector3::new(
+                rad,
+                0.0,
+                h * 0.5,
+            ));
+            Shape {
+                footprint_radius: rad + h * 0.3,
+                height: h,
+                mesh: TriMesh::merged(&[body, handle]),
+            }
         }
         Category::Bowl => {
             let (rad, h) = (u(r, 0.06, 0.11), u(r, 0.04, 0.07));
             let wall = 0.005;
             let base = rad * 0.45;
             let m = lathe(
-                &[(base, 0.0), (rad * 0.85, h * 0.6), (rad, h), (rad - wall, h), (rad * 0.85 - wall, h * 0.6 + wall), (base - wall, wall)],
+                &[
+                    (base, 0.0),
+                    (rad * 0.85, h * 0.6),
+                    (rad, h),
+                    (rad - wall, h),
+                    (rad * 0.85 - wall, h * 0.6 + wall),
+                    (base - wall, wall),
+                ],
                 SEG,
                 true,
                 true,
             );
-            Shape { footprint_radius: rad, height: h, mesh: m }
+            Shape {
+                footprint_radius: rad,
+                height: h,
+                mesh: m,
+            }
         }
         Category::Vase => {
             let (rad, h) = (u(r, 0.04, 0.07), u(r, 0.18, 0.3));
             let m = lathe(
-                &[(rad * 0.6, 0.0), (rad, h * 0.35), (rad * 0.45, h * 0.75), (rad * 0.6, h)],
+                &[
+                    (rad * 0.6, 0.0),
+                    (rad, h * 0.35),
+                    (rad * 0.45, h * 0.75),
+                    (rad * 0.6, h),
+                ],
                 SEG,
                 true,
                 true,
             );
-            Shape { footprint_radius: rad, height: h, mesh: m }
+            Shape {
+                footprint_radius: rad,
+                height: h,
+                mesh: m,
+            }
         }
         Category::LBracket => {
             // An L-shaped block: non-convex, so the convex hull of its visible part is wrong.
             let (w, d, h) = (u(r, 0.12, 0.22), u(r, 0.06, 0.1), u(r, 0.12, 0.22));
             let t = u(r, 0.03, 0.05);
             let m = TriMesh::merged(&[
-                cuboid(Point3::new(-w / 2.0, -d / 2.0, 0.0), Point3::new(w / 2.0, d / 2.0, t)),
-                cuboid(Point3::new(-w / 2.0, -d / 2.0, t), Point3::new(-w / 2.0 + t, d / 2.0, h)),
+                cuboid(
+                    Point3::new(-w / 2.0, -d / 2.0, 0.0),
+                    Point3::new(w / 2.0, d / 2.0, t),
+                ),
+                cuboid(
+                    Point3::new(-w / 2.0, -d / 2.0, t),
+                    Point3::new(-w / 2.0 + t, d / 2.0, h),
+                ),
             ]);
-            Shape { footprint_radius: (w * w + d * d).sqrt() / 2.0, height: h, mesh: m }
+            Shape {
+                footprint_radius: (w * w + d * d).sqrt() / 2.0,
+                height: h,
+                mesh: m,
+            }
         }
         other => panic!("{other:?} is not a tabletop category"),
     }

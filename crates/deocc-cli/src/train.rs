@@ -1,0 +1,130 @@
+//! `deocc train`: start or resume training GL-DoT in a run directory.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use deocc_model::data::{shards, PairData};
+use deocc_model::train::{TrainConfig, Trainer};
+use deocc_model::GlDotConfig;
+
+use crate::progress::bar;
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Run directory: created if new, resumed if it holds a checkpoint.
+    #[arg(long)]
+    run: PathBuf,
+    /// Folder with train-*.safetensors pair shards (from `deocc synth pairs --split train`).
+    #[arg(long, default_value = "data/pairs")]
+    data: PathBuf,
+    /// Model preset: tiny, small (shipped), large.
+    #[arg(long, default_value = "small")]
+    preset: String,
+    /// Total optimisation steps (a resumed run continues up to this).
+    #[arg(long, default_value_t = 20_000)]
+    steps: usize,
+    #[arg(long, default_value_t = 16)]
+    batch_size: usize,
+    #[arg(long, default_value_t = 5e-4)]
+    learning_rate: f64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Timestep shift used in training and sampling.
+    #[arg(long, default_value_t = 1.0)]
+    timestep_shift: f32,
+    #[arg(long, default_value_t = 200)]
+    checkpoint_every: usize,
+    /// Use only the first N pairs (for quick experiments).
+    #[arg(long)]
+    limit_pairs: Option<usize>,
+}
+
+pub fn run(a: TrainArgs) -> Result<()> {
+    let Some(model) = GlDotConfig::preset(&a.preset) else {
+        bail!("unknown preset '{}' (known: tiny, small, large)", a.preset);
+    };
+    let files = shards(&a.data, "train")
+        .with_context(|| format!("{}: cannot list training pairs", a.data.display()))?;
+    if files.is_empty() {
+        bail!("{}: no train-*.safetensors shards; make them with `deocc synth pairs --split train --out {}`", a.data.display(), a.data.display());
+    }
+    let mut data = PairData::load(&files)?;
+    if let Some(n) = a.limit_pairs {
+        let mut set = data.set.clone();
+        truncate_pairs(&mut set, n);
+        data = PairData::new(set);
+    }
+    if data.resolution() != model.resolution {
+        bail!(
+            "pairs are {}x{} but preset '{}' expects {}x{}",
+            data.resolution(),
+            data.resolution(),
+            a.preset,
+            model.resolution,
+            model.resolution
+        );
+    }
+    let config = TrainConfig {
+        model,
+        seed: a.seed,
+        batch_size: a.batch_size,
+        steps: a.steps,
+        learning_rate: a.learning_rate,
+        timestep_shift: a.timestep_shift,
+        checkpoint_every: a.checkpoint_every.max(1),
+        ..TrainConfig::default()
+    };
+    let device = candle_core::Device::Cpu;
+    let mut trainer = Trainer::open(&a.run, config, &device)?;
+    let start = trainer.state.step;
+    let total = trainer.config.steps;
+    eprintln!(
+        "training {} pairs, {} parameters, step {start} -> {total}, run {}",
+        data.len(),
+        deocc_model::model::parameter_count(&trainer.varmap),
+        a.run.display()
+    );
+    let pb = bar((total.saturating_sub(start)) as u64, "train");
+    let mut recent = Vec::new();
+    while trainer.state.step < total {
+        let r = trainer.step(&data)?;
+        Trainer::log(&a.run, &r)?;
+        recent.push(r.loss);
+        if recent.len() > 50 {
+            recent.remove(0);
+        }
+        pb.set_message(format!(
+            "loss {:.4}",
+            recent.iter().sum::<f32>() / recent.len() as f32
+        ));
+        pb.inc(1);
+        if r.step % trainer.config.checkpoint_every == 0 {
+            trainer.checkpoint(&a.run)?;
+        }
+    }
+    trainer.checkpoint(&a.run)?;
+    pb.finish_and_clear();
+    println!(
+        "trained to step {} (last loss {:.4}); run in {}",
+        trainer.state.step,
+        trainer.state.last_loss,
+        a.run.display()
+    );
+    Ok(())
+}
+
+fn truncate_pairs(s: &mut deocc_synth::pairs::PairSet, n: usize) {
+    let n = n.min(s.len());
+    let px = s.pixels();
+    s.crop_rgb.truncate(n * px * 3);
+    s.whole_rgb.truncate(n * px * 3);
+    s.visible_mask.truncate(n * px);
+    s.amodal_mask.truncate(n * px);
+    s.visible_depth.truncate(n * px);
+    s.whole_depth.truncate(n * px);
+    s.group.truncate(n);
+    s.category.truncate(n);
+    s.held_out.truncate(n);
+    s.occlusion.truncate(n);
+}

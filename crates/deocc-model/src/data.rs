@@ -1,0 +1,153 @@
+//! Batches for GL-DoT from the synthetic training pairs.
+//!
+//! Target channels (in [-1, 1] roughly): RGB `v / 127.5 - 1`, amodal mask `2 m - 1`, relative
+//! depth times [`DEPTH_SCALE`]. Conditioning channels: crop RGB, visible mask, visible relative
+//! depth, scaled the same way.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use candle_core::{Device, Result, Tensor};
+use deocc_synth::pairs::{load_pairs, PairSet};
+use rand::Rng;
+
+/// Relative depth is (d - median visible) / crop width: about +-0.5; doubled to fill [-1, 1].
+pub const DEPTH_SCALE: f32 = 2.0;
+pub const TARGET_CHANNELS: usize = 5;
+pub const COND_CHANNELS: usize = 5;
+
+/// Pairs plus an index of which pairs show the same object.
+pub struct PairData {
+    pub set: PairSet,
+    groups: HashMap<u32, Vec<usize>>,
+}
+
+impl PairData {
+    pub fn new(set: PairSet) -> Self {
+        let mut groups: HashMap<u32, Vec<usize>> = HashMap::new();
+        for (i, &g) in set.group.iter().enumerate() {
+            groups.entry(g).or_default().push(i);
+        }
+        Self { set, groups }
+    }
+
+    /// Loads and concatenates shards (group ids are made unique per shard file).
+    pub fn load(paths: &[impl AsRef<Path>]) -> std::result::Result<Self, deocc_synth::SynthError> {
+        let mut all = PairSet::default();
+        for (k, p) in paths.iter().enumerate() {
+            let mut s = load_pairs(p.as_ref())?;
+            for g in &mut s.group {
+                *g = g.wrapping_add((k as u32) << 24);
+            }
+            all.extend(&s);
+        }
+        Ok(Self::new(all))
+    }
+
+    pub fn len(&self) -> usize {
+        self.set.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.set.is_empty()
+    }
+    pub fn resolution(&self) -> usize {
+        self.set.resolution as usize
+    }
+
+    /// Other pairs of the same object (other views).
+    pub fn other_views(&self, i: usize) -> Vec<usize> {
+        self.groups
+            .get(&self.set.group[i])
+            .map(|v| v.iter().copied().filter(|&j| j != i).collect())
+            .unwrap_or_default()
+    }
+
+    /// A random other view of pair `i`, if there is one.
+    pub fn random_other_view(&self, i: usize, rng: &mut impl Rng) -> Option<usize> {
+        let others = self.other_views(i);
+        (!others.is_empty()).then(|| others[rng.random_range(0..others.len())])
+    }
+
+    fn pixel(&self, i: usize, p: usize) -> usize {
+        i * self.set.pixels() + p
+    }
+
+    /// Writes pair `i`'s target (R*R*5) and condition (R*R*5), optionally mirrored left-right.
+    fn write_pair(&self, i: usize, flip: bool, target: &mut [f32], cond: &mut [f32]) {
+        let r = self.resolution();
+        let s = &self.set;
+        for v in 0..r {
+            for u in 0..r {
+                let src_u = if flip { r - 1 - u } else { u };
+                let p = self.pixel(i, v * r + src_u);
+                let o = v * r + u;
+                for c in 0..3 {
+                    target[o * TARGET_CHANNELS + c] = s.whole_rgb[3 * p + c] as f32 / 127.5 - 1.0;
+                    cond[o * COND_CHANNELS + c] = s.crop_rgb[3 * p + c] as f32 / 127.5 - 1.0;
+                }
+                target[o * TARGET_CHANNELS + 3] = 2.0 * s.amodal_mask[p] as f32 - 1.0;
+                target[o * TARGET_CHANNELS + 4] = s.whole_depth[p] * DEPTH_SCALE;
+                cond[o * COND_CHANNELS + 3] = 2.0 * s.visible_mask[p] as f32 - 1.0;
+                cond[o * COND_CHANNELS + 4] = s.visible_depth[p] * DEPTH_SCALE;
+            }
+        }
+    }
+
+    /// (x0 (B, R, R, 5), cond image (B, R, R, 5)) for the given pairs; `flips[k]` mirrors sample k.
+    pub fn batch(
+        &self,
+        indices: &[usize],
+        flips: &[bool],
+        device: &Device,
+    ) -> Result<(Tensor, Tensor)> {
+        let r = self.resolution();
+        let n = r * r;
+        let mut target = vec![0f32; indices.len() * n * TARGET_CHANNELS];
+        let mut cond = vec![0f32; indices.len() * n * COND_CHANNELS];
+        for (k, &i) in indices.iter().enumerate() {
+            let flip = flips.get(k).copied().unwrap_or(false);
+            self.write_pair(
+                i,
+                flip,
+                &mut target[k * n * TARGET_CHANNELS..(k + 1) * n * TARGET_CHANNELS],
+                &mut cond[k * n * COND_CHANNELS..(k + 1) * n * COND_CHANNELS],
+            );
+        }
+        let b = indices.len();
+        Ok((
+            Tensor::from_vec(target, (b, r, r, TARGET_CHANNELS), device)?,
+            Tensor::from_vec(cond, (b, r, r, COND_CHANNELS), device)?,
+        ))
+    }
+
+    pub fn amodal_mask(&self, i: usize) -> &[u8] {
+        let n = self.set.pixels();
+        &self.set.amodal_mask[i * n..(i + 1) * n]
+    }
+    pub fn visible_mask(&self, i: usize) -> &[u8] {
+        let n = self.set.pixels();
+        &self.set.visible_mask[i * n..(i + 1) * n]
+    }
+    pub fn whole_depth(&self, i: usize) -> &[f32] {
+        let n = self.set.pixels();
+        &self.set.whole_depth[i * n..(i + 1) * n]
+    }
+    pub fn visible_depth(&self, i: usize) -> &[f32] {
+        let n = self.set.pixels();
+        &self.set.visible_depth[i * n..(i + 1) * n]
+    }
+}
+
+/// Every `*.safetensors` shard of a split in a folder, sorted.
+pub fn shards(dir: &Path, split: &str) -> std::io::Result<Vec<std::path::PathBuf>> {
+    let mut v: Vec<_> = std::fs::read_dir(dir)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with(&format!("{split}-")) && n.ends_with(".safetensors"))
+        })
+        .collect();
+    v.sort();
+    Ok(v)
+}

@@ -1,0 +1,156 @@
+//! Using a trained GL-DoT: load weights and complete crops in a few steps.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use candle_core::{DType, Device, Tensor};
+use candle_nn::VarBuilder;
+
+use crate::config::GlDotConfig;
+use crate::data::{COND_CHANNELS, DEPTH_SCALE, TARGET_CHANNELS};
+use crate::flow::euler_sample;
+use crate::init::randn;
+use crate::model::{mix_views, GlDot};
+use crate::train::{read_json, Result, TrainConfig, TrainError};
+use rand::SeedableRng;
+
+/// A loaded model ready to sample.
+pub struct Completer {
+    pub model: GlDot,
+    pub timestep_shift: f32,
+    pub device: Device,
+}
+
+/// One completed crop.
+#[derive(Debug, Clone)]
+pub struct Completion {
+    /// (R*R*3) RGB of the whole object on white.
+    pub rgb: Vec<u8>,
+    /// (R*R) amodal mask: the mask channel above 0.
+    pub amodal: Vec<bool>,
+    /// (R*R) relative depth (the training pairs' units), meaningful inside `amodal`.
+    pub depth_rel: Vec<f32>,
+}
+
+impl Completer {
+    /// From a weights file (safetensors, f32 or f16) and the `train.json` or model config beside it.
+    pub fn load(
+        weights: &Path,
+        config: &GlDotConfig,
+        timestep_shift: f32,
+        device: &Device,
+    ) -> Result<Self> {
+        let tensors =
+            candle_core::safetensors::load(weights, device).map_err(|e| TrainError::File {
+                path: weights.to_path_buf(),
+                msg: e.to_string(),
+            })?;
+        let tensors: HashMap<String, Tensor> = tensors
+            .into_iter()
+            .map(|(k, v)| Ok((k, v.to_dtype(DType::F32)?)))
+            .collect::<candle_core::Result<_>>()?;
+        let vb = VarBuilder::from_tensors(tensors, DType::F32, device);
+        let model = GlDot::new(config, vb).map_err(|e| TrainError::File {
+            path: weights.to_path_buf(),
+            msg: format!("weights do not fit the model configuration: {e}"),
+        })?;
+        Ok(Self {
+            model,
+            timestep_shift,
+            device: device.clone(),
+        })
+    }
+
+    /// From a run directory (EMA weights) or a folder holding `model.safetensors` + `train.json`.
+    pub fn from_dir(dir: &Path, device: &Device) -> Result<Self> {
+        let cfg: TrainConfig = read_json(&dir.join("train.json"))?;
+        let weights = if dir.join("ema.safetensors").exists() {
+            dir.join("ema.safetensors")
+        } else {
+            dir.join("model.safetensors")
+        };
+        Self::load(&weights, &cfg.model, cfg.timestep_shift, device)
+    }
+
+    pub fn resolution(&self) -> usize {
+        self.model.config.resolution
+    }
+
+    /// Completes a batch. `cond` (B, R, R, 5) as built by [`crate::data::PairData::batch`];
+    /// `other_views[k]` are condition images of other views of sample k's object, mixed in with
+    /// weight `rho`. Deterministic given `seed`.
+    pub fn complete(
+        &self,
+        cond: &Tensor,
+        other_views: &[Vec<Tensor>],
+        rho: f32,
+        steps: usize,
+        seed: u64,
+    ) -> Result<Vec<Completion>> {
+        let (b, r, _, c) = cond.dims4()?;
+        if c != COND_CHANNELS || r != self.resolution() {
+            return Err(TrainError::Config(format!(
+                "condition must be (B, {r0}, {r0}, {COND_CHANNELS}), got {:?}",
+                cond.dims(),
+                r0 = self.resolution()
+            )));
+        }
+        let own = self.model.encode(cond)?;
+        let tokens = if other_views.iter().any(|v| !v.is_empty()) && rho > 0.0 {
+            let mut means = Vec::with_capacity(b);
+            let mut rhos = Vec::with_capacity(b);
+            for k in 0..b {
+                let views = other_views.get(k).filter(|v| !v.is_empty());
+                match views {
+                    Some(v) => {
+                        let t = self.model.encode(&Tensor::cat(v, 0)?)?; // (V, M, D)
+                        means.push(t.mean_keepdim(0)?);
+                        rhos.push(rho);
+                    }
+                    None => {
+                        means.push(own.narrow(0, k, 1)?);
+                        rhos.push(0.0);
+                    }
+                }
+            }
+            mix_views(
+                &own,
+                &Tensor::cat(&means, 0)?,
+                &Tensor::from_vec(rhos, b, &self.device)?,
+            )?
+        } else {
+            own
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let noise = randn((b, r, r, TARGET_CHANNELS), &mut rng, &self.device)?;
+        let x0 = euler_sample(&noise, steps, self.timestep_shift, |x, t| {
+            let tt = Tensor::full(t, b, &self.device)?;
+            self.model.forward(x, &tt, cond, &tokens)
+        })?;
+        let data = x0.flatten_all()?.to_vec1::<f32>()?;
+        let n = r * r;
+        Ok((0..b)
+            .map(|k| {
+                let px = &data[k * n * TARGET_CHANNELS..(k + 1) * n * TARGET_CHANNELS];
+                Completion {
+                    rgb: px
+                        .chunks_exact(TARGET_CHANNELS)
+                        .flat_map(|p| {
+                            (0..3)
+                                .map(|c| ((p[c] + 1.0) * 127.5).round().clamp(0.0, 255.0) as u8)
+                                .collect::<Vec<_>>()
+                        })
+                        .collect(),
+                    amodal: px
+                        .chunks_exact(TARGET_CHANNELS)
+                        .map(|p| p[3] > 0.0)
+                        .collect(),
+                    depth_rel: px
+                        .chunks_exact(TARGET_CHANNELS)
+                        .map(|p| p[4] / DEPTH_SCALE)
+                        .collect(),
+                }
+            })
+            .collect())
+    }
+}

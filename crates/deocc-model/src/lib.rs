@@ -1,0 +1,24 @@
+//! # deocc-model
+//!
+//! GL-DoT, the generative part of deocc: a small SANA-style linear diffusion transformer that
+//! completes an occluded object crop into the whole object (RGB, amodal mask, relative depth),
+//! trained with rectified flow and sampled in a few Euler steps.
+//!
+//! - [`config`]: presets (`tiny` for tests, `small` shipped, `large` shaped like SANA-600M);
+//! - [`model`]: the network; [`ops`]: fast CPU building blocks;
+//! - [`flow`]: rectified-flow loss, timesteps, the Euler sampler;
+//! - [`data`]: batches from the synthetic benchmark's training pairs;
+//! - [`train`]: the resumable training loop (run directory, AdamW, EMA, checkpoints);
+//! - [`infer`]: loading a trained model and completing crops.
+
+pub mod config;
+pub mod data;
+pub mod flow;
+pub mod infer;
+pub mod init;
+pub mod model;
+pub mod ops;
+pub mod train;
+
+pub use config::GlDotConfig;
+pub use model::GlDot;

@@ -1,0 +1,226 @@
+//! Building blocks with the shapes GL-DoT needs, written so they train fast on a CPU.
+//!
+//! - [`depthwise_conv3x3`]: a channels-last 3x3 depthwise convolution as a candle `CustomOp2` with a
+//!   hand-written backward. candle's grouped `conv2d` runs one convolution per group (thousands of
+//!   tiny convolutions per block), and composing it from shifted slices has a slow backward; this op
+//!   is one pass over memory in each direction (see ../shared/notes/candle-on-this-cpu.md).
+//! - [`layer_norm`]: LayerNorm without affine parameters, composed from ops that have a backward
+//!   (candle_nn's fused layer_norm has none).
+//! - [`linear_attention`]: SANA's ReLU linear attention, O(N d^2).
+
+use candle_core::{CpuStorage, CustomOp2, DType, Layout, Result, Shape, Tensor, D};
+use rayon::prelude::*;
+
+/// `y = x * (1 + scale) + shift`, with `shift` and `scale` of shape (B, 1, D) broadcast over tokens.
+pub fn modulate(x: &Tensor, shift: &Tensor, scale: &Tensor) -> Result<Tensor> {
+    x.broadcast_mul(&(scale + 1.0)?)?.broadcast_add(shift)
+}
+
+/// LayerNorm over the last dimension, no affine parameters.
+pub fn layer_norm(x: &Tensor, eps: f64) -> Result<Tensor> {
+    let mean = x.mean_keepdim(D::Minus1)?;
+    let centered = x.broadcast_sub(&mean)?;
+    let var = centered.sqr()?.mean_keepdim(D::Minus1)?;
+    centered.broadcast_div(&(var + eps)?.sqrt()?)
+}
+
+/// ReLU linear attention. `q`, `k`, `v`: (B, heads, N, d). Returns (B, heads, N, d):
+/// `out_i = relu(q_i) (sum_j relu(k_j)^T v_j) / (relu(q_i) . sum_j relu(k_j) + eps)`.
+///
+/// As in SANA, `v` is padded with a column of ones so that the numerator and the normaliser come
+/// out of one matmul; everything stays in f32.
+pub fn linear_attention(q: &Tensor, k: &Tensor, v: &Tensor, eps: f64) -> Result<Tensor> {
+    let q = q.relu()?;
+    let k = k.relu()?;
+    let (b, h, n, d) = v.dims4()?;
+    let ones = Tensor::ones((b, h, n, 1), v.dtype(), v.device())?;
+    let v1 = Tensor::cat(&[v, &ones], 3)?; // (B, h, N, d + 1)
+    let kv = k.transpose(2, 3)?.contiguous()?.matmul(&v1)?; // (B, h, d, d + 1)
+    let out = q.matmul(&kv)?; // (B, h, N, d + 1)
+    let num = out.narrow(3, 0, d)?;
+    let den = out.narrow(3, d, 1)?;
+    num.broadcast_div(&(den + eps)?)
+}
+
+/// Softmax attention with the same interface, for the cost-contrast config switch and for
+/// cross-attention. `q`: (B, h, N, d), `k`, `v`: (B, h, M, d).
+pub fn softmax_attention(q: &Tensor, k: &Tensor, v: &Tensor) -> Result<Tensor> {
+    let d = q.dim(3)? as f64;
+    let scores = (q.matmul(&k.transpose(2, 3)?.contiguous()?)? / d.sqrt())?;
+    candle_nn::ops::softmax(&scores, D::Minus1)?.matmul(v)
+}
+
+fn contiguous_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> {
+    let data = s.as_slice::<f32>()?;
+    match l.contiguous_offsets() {
+        Some((a, b)) => Ok(&data[a..b]),
+        None => candle_core::bail!("{what} must be contiguous"),
+    }
+}
+
+/// y[b,i,j,c] = sum_{a,e in 0..3} x[b, i+a-1, j+e-1, c] * w[a, e, c], zero padding.
+fn dwconv_forward(x: &[f32], w: &[f32], bsz: usize, h: usize, wd: usize, c: usize) -> Vec<f32> {
+    let mut y = vec![0f32; bsz * h * wd * c];
+    y.par_chunks_mut(wd * c)
+        .enumerate()
+        .for_each(|(row_idx, out_row)| {
+            let (b, i) = (row_idx / h, row_idx % h);
+            for a in 0..3 {
+                let ii = i as isize + a as isize - 1;
+                if ii < 0 || ii >= h as isize {
+                    continue;
+                }
+                let in_row = &x[(b * h + ii as usize) * wd * c..][..wd * c];
+                for e in 0..3 {
+                    let wk = &w[(a * 3 + e) * c..][..c];
+                    for j in 0..wd {
+                        let jj = j as isize + e as isize - 1;
+                        if jj < 0 || jj >= wd as isize {
+                            continue;
+                        }
+                        let src = &in_row[jj as usize * c..][..c];
+                        let dst = &mut out_row[j * c..][..c];
+                        for ((d, s), k) in dst.iter_mut().zip(src).zip(wk) {
+                            *d += s * k;
+                        }
+                    }
+                }
+            }
+        });
+    y
+}
+
+/// Depthwise 3x3 convolution, channels last: x (B, H, W, C), weight (3, 3, C) -> (B, H, W, C).
+struct DepthwiseConv3x3;
+
+impl CustomOp2 for DepthwiseConv3x3 {
+    fn name(&self) -> &'static str {
+        "depthwise-conv3x3-nhwc"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let [b, h, w, c] = l1.dims() else {
+            candle_core::bail!("depthwise conv input must be (B, H, W, C)")
+        };
+        if l2.dims() != [3, 3, *c] {
+            candle_core::bail!(
+                "depthwise conv weight must be (3, 3, {c}), got {:?}",
+                l2.dims()
+            );
+        }
+        let x = contiguous_f32(s1, l1, "depthwise conv input")?;
+        let k = contiguous_f32(s2, l2, "depthwise conv weight")?;
+        let y = dwconv_forward(x, k, *b, *h, *w, *c);
+        Ok((CpuStorage::F32(y), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        w: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        // dL/dx is the same convolution of the output gradient with the kernel flipped in space.
+        let flipped = {
+            let rows: Vec<Tensor> = (0..3)
+                .rev()
+                .map(|a| w.narrow(0, a, 1))
+                .collect::<Result<_>>()?;
+            let w = Tensor::cat(&rows, 0)?;
+            let cols: Vec<Tensor> = (0..3)
+                .rev()
+                .map(|e| w.narrow(1, e, 1))
+                .collect::<Result<_>>()?;
+            Tensor::cat(&cols, 1)?.contiguous()?
+        };
+        let grad = grad.contiguous()?;
+        let gx = grad.apply_op2_no_bwd(&flipped, &DepthwiseConv3x3)?;
+        let gw = x
+            .contiguous()?
+            .apply_op2_no_bwd(&grad, &DepthwiseConv3x3WeightGrad)?;
+        Ok((Some(gx), Some(gw)))
+    }
+}
+
+/// dL/dw[a, e, c] = sum_{b,i,j} grad[b,i,j,c] * x[b, i+a-1, j+e-1, c].
+struct DepthwiseConv3x3WeightGrad;
+
+impl CustomOp2 for DepthwiseConv3x3WeightGrad {
+    fn name(&self) -> &'static str {
+        "depthwise-conv3x3-nhwc-weight-grad"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let [b, h, w, c] = *l1.dims() else {
+            candle_core::bail!("expected (B, H, W, C)")
+        };
+        let x = contiguous_f32(s1, l1, "input")?;
+        let g = contiguous_f32(s2, l2, "output gradient")?;
+        // One partial (3, 3, C) sum per image row, reduced at the end: parallel and deterministic.
+        let partial: Vec<Vec<f32>> = (0..b * h)
+            .into_par_iter()
+            .map(|row_idx| {
+                let (bi, i) = (row_idx / h, row_idx % h);
+                let mut acc = vec![0f32; 9 * c];
+                let g_row = &g[(bi * h + i) * w * c..][..w * c];
+                for a in 0..3 {
+                    let ii = i as isize + a as isize - 1;
+                    if ii < 0 || ii >= h as isize {
+                        continue;
+                    }
+                    let x_row = &x[(bi * h + ii as usize) * w * c..][..w * c];
+                    for e in 0..3 {
+                        let dst = &mut acc[(a * 3 + e) * c..][..c];
+                        for j in 0..w {
+                            let jj = j as isize + e as isize - 1;
+                            if jj < 0 || jj >= w as isize {
+                                continue;
+                            }
+                            let xs = &x_row[jj as usize * c..][..c];
+                            let gs = &g_row[j * c..][..c];
+                            for ((d, xv), gv) in dst.iter_mut().zip(xs).zip(gs) {
+                                *d += xv * gv;
+                            }
+                        }
+                    }
+                }
+                acc
+            })
+            .collect();
+        let mut out = vec![0f32; 9 * c];
+        for p in &partial {
+            for (o, v) in out.iter_mut().zip(p) {
+                *o += v;
+            }
+        }
+        Ok((CpuStorage::F32(out), Shape::from_dims(&[3, 3, c])))
+    }
+}
+
+/// Depthwise 3x3 convolution of channels-last `x` (B, H, W, C) with `weight` (3, 3, C), zero
+/// padding, stride 1. f32 on CPU through the custom op; any other device falls back to candle's
+/// grouped conv2d.
+pub fn depthwise_conv3x3(x: &Tensor, weight: &Tensor) -> Result<Tensor> {
+    if x.device().is_cpu() && x.dtype() == DType::F32 {
+        x.contiguous()?
+            .apply_op2(&weight.contiguous()?, DepthwiseConv3x3)
+    } else {
+        let c = x.dim(3)?;
+        let xc = x.permute((0, 3, 1, 2))?.contiguous()?;
+        let k = weight.permute((2, 0, 1))?.reshape((c, 1, 3, 3))?;
+        xc.conv2d(&k, 1, 1, 1, c)?.permute((0, 2, 3, 1))
+    }
+}

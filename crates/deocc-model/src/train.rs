@@ -1,0 +1,447 @@
+//! Resumable rectified-flow training of GL-DoT.
+//!
+//! A run directory holds everything needed to resume or to use the model:
+//! ```text
+//! run/
+//!   train.json          TrainConfig (model config and seed included), written first
+//!   model.safetensors   current weights
+//!   ema.safetensors     exponential moving average of the weights (used for inference)
+//!   optimizer.safetensors  AdamW moments
+//!   state.json          step and last loss (written last: a checkpoint is complete when it is)
+//!   loss.csv            step, loss, learning rate, gradient norm
+//! ```
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use candle_core::{DType, Device, Tensor, Var};
+use candle_nn::{VarBuilder, VarMap};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::config::GlDotConfig;
+use crate::data::PairData;
+use crate::flow::{interpolate, sample_timesteps, velocity_target};
+use crate::init::{randn, SeededInit};
+use crate::model::{mix_views, GlDot};
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("{path}: {msg}")]
+    File { path: PathBuf, msg: String },
+    #[error(transparent)]
+    Candle(#[from] candle_core::Error),
+    #[error("{0}")]
+    Config(String),
+}
+
+pub type Result<T, E = TrainError> = std::result::Result<T, E>;
+
+fn file_err(path: &Path, e: impl std::fmt::Display) -> TrainError {
+    TrainError::File {
+        path: path.to_path_buf(),
+        msg: e.to_string(),
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default)]
+pub struct TrainConfig {
+    pub model: GlDotConfig,
+    pub seed: u64,
+    pub batch_size: usize,
+    pub steps: usize,
+    pub learning_rate: f64,
+    pub warmup_steps: usize,
+    pub weight_decay: f64,
+    pub grad_clip: f64,
+    pub ema_decay: f64,
+    /// Timestep shift, the same in training and sampling.
+    pub timestep_shift: f32,
+    /// Probability that a sample is conditioned on another view too (with rho ~ U(0, 1)).
+    pub cross_view_probability: f64,
+    pub checkpoint_every: usize,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            model: GlDotConfig::small(),
+            seed: 0,
+            batch_size: 16,
+            steps: 20_000,
+            learning_rate: 5e-4,
+            warmup_steps: 300,
+            weight_decay: 0.01,
+            grad_clip: 1.0,
+            ema_decay: 0.999,
+            timestep_shift: 1.0,
+            cross_view_probability: 0.5,
+            checkpoint_every: 200,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, Default)]
+pub struct TrainState {
+    pub step: usize,
+    pub last_loss: f32,
+}
+
+/// AdamW with moments we can save.
+pub struct AdamW {
+    pub m: BTreeMap<String, Tensor>,
+    pub v: BTreeMap<String, Tensor>,
+    beta1: f64,
+    beta2: f64,
+    eps: f64,
+}
+
+impl AdamW {
+    pub fn new(vars: &BTreeMap<String, Var>) -> candle_core::Result<Self> {
+        let zeros = |v: &Var| v.as_tensor().zeros_like();
+        Ok(Self {
+            m: vars
+                .iter()
+                .map(|(k, v)| Ok((k.clone(), zeros(v)?)))
+                .collect::<candle_core::Result<_>>()?,
+            v: vars
+                .iter()
+                .map(|(k, v)| Ok((k.clone(), zeros(v)?)))
+                .collect::<candle_core::Result<_>>()?,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+        })
+    }
+
+    /// One update with gradients already scaled (clipped); `step` counts from 1.
+    pub fn step(
+        &mut self,
+        vars: &BTreeMap<String, Var>,
+        grads: &BTreeMap<String, Tensor>,
+        step: usize,
+        lr: f64,
+        wd: f64,
+    ) -> candle_core::Result<()> {
+        let (b1, b2) = (self.beta1, self.beta2);
+        let c1 = 1.0 - b1.powi(step as i32);
+        let c2 = 1.0 - b2.powi(step as i32);
+        for (name, var) in vars {
+            let Some(g) = grads.get(name) else { continue };
+            let m = self
+                .m
+                .get_mut(name)
+                .ok_or_else(|| candle_core::Error::msg(format!("no moment for {name}")))?;
+            *m = ((&*m * b1)? + (g * (1.0 - b1))?)?;
+            let v = self
+                .v
+                .get_mut(name)
+                .ok_or_else(|| candle_core::Error::msg(format!("no moment for {name}")))?;
+            *v = ((&*v * b2)? + (g.sqr()? * (1.0 - b2))?)?;
+            let update = ((&*m / c1)? / ((&*v / c2)?.sqrt()? + self.eps)?)?;
+            // Decoupled weight decay on matrices only (not biases, norms or tables).
+            let decay = if var.rank() >= 2 && !name.contains("table") {
+                wd
+            } else {
+                0.0
+            };
+            let new = ((var.as_tensor() * (1.0 - lr * decay))? - (update * lr)?)?;
+            var.set(&new)?;
+        }
+        Ok(())
+    }
+}
+
+/// Learning rate with linear warm-up then cosine decay to 10%.
+pub fn learning_rate(cfg: &TrainConfig, step: usize) -> f64 {
+    if step < cfg.warmup_steps {
+        return cfg.learning_rate * (step + 1) as f64 / cfg.warmup_steps as f64;
+    }
+    let t = (step - cfg.warmup_steps) as f64
+        / (cfg.steps.saturating_sub(cfg.warmup_steps)).max(1) as f64;
+    cfg.learning_rate * (0.1 + 0.9 * 0.5 * (1.0 + (std::f64::consts::PI * t.min(1.0)).cos()))
+}
+
+fn sorted_vars(varmap: &VarMap) -> BTreeMap<String, Var> {
+    varmap
+        .data()
+        .lock()
+        .map(|d| d.iter().map(|(k, v)| (k.clone(), v.clone())).collect())
+        .unwrap_or_default()
+}
+
+fn save_tensors(path: &Path, tensors: &BTreeMap<String, Tensor>) -> Result<()> {
+    let tmp = path.with_extension("safetensors.tmp");
+    let map: std::collections::HashMap<&str, Tensor> = tensors
+        .iter()
+        .map(|(k, v)| (k.as_str(), v.clone()))
+        .collect();
+    candle_core::safetensors::save(&map, &tmp).map_err(|e| file_err(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| file_err(path, e))
+}
+
+fn load_tensors(path: &Path, device: &Device) -> Result<BTreeMap<String, Tensor>> {
+    Ok(candle_core::safetensors::load(path, device)
+        .map_err(|e| file_err(path, e))?
+        .into_iter()
+        .collect())
+}
+
+fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    let tmp = path.with_extension("json.tmp");
+    let text = serde_json::to_string_pretty(value).map_err(|e| file_err(path, e))?;
+    std::fs::write(&tmp, text + "\n").map_err(|e| file_err(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| file_err(path, e))
+}
+
+pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).map_err(|e| file_err(path, e))?;
+    serde_json::from_str(&text).map_err(|e| file_err(path, e))
+}
+
+/// A training run in memory.
+pub struct Trainer {
+    pub config: TrainConfig,
+    pub model: GlDot,
+    pub varmap: VarMap,
+    vars: BTreeMap<String, Var>,
+    ema: BTreeMap<String, Tensor>,
+    opt: AdamW,
+    pub state: TrainState,
+    device: Device,
+}
+
+/// What one step did.
+#[derive(Debug, Clone, Copy)]
+pub struct StepReport {
+    pub step: usize,
+    pub loss: f32,
+    pub learning_rate: f64,
+    pub grad_norm: f32,
+}
+
+impl Trainer {
+    pub fn new(config: TrainConfig, device: &Device) -> Result<Self> {
+        config.model.validate().map_err(TrainError::Config)?;
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_backend(
+            Box::new(SeededInit::new(varmap.clone(), config.seed)),
+            DType::F32,
+            device.clone(),
+        );
+        let model = GlDot::new(&config.model, vb)?;
+        let vars = sorted_vars(&varmap);
+        let ema = vars
+            .iter()
+            .map(|(k, v)| Ok((k.clone(), v.as_tensor().copy()?)))
+            .collect::<candle_core::Result<_>>()?;
+        let opt = AdamW::new(&vars)?;
+        Ok(Self {
+            config,
+            model,
+            varmap,
+            vars,
+            ema,
+            opt,
+            state: TrainState::default(),
+            device: device.clone(),
+        })
+    }
+
+    /// Opens a run directory: resumes it if it has a checkpoint, else starts it with `config`.
+    pub fn open(dir: &Path, config: TrainConfig, device: &Device) -> Result<Self> {
+        std::fs::create_dir_all(dir).map_err(|e| file_err(dir, e))?;
+        let state_path = dir.join("state.json");
+        if !state_path.exists() {
+            let t = Self::new(config, device)?;
+            write_json(&dir.join("train.json"), &t.config)?;
+            return Ok(t);
+        }
+        let mut saved: TrainConfig = read_json(&dir.join("train.json"))?;
+        if saved.model != config.model {
+            return Err(TrainError::Config(format!("{}: this run was started with another model configuration; use a new --run directory", dir.display())));
+        }
+        saved.steps = config.steps; // the only thing a resume may change: how far to go
+        let mut t = Self::new(saved, device)?;
+        let weights = load_tensors(&dir.join("model.safetensors"), device)?;
+        for (name, var) in &t.vars {
+            let w = weights.get(name).ok_or_else(|| {
+                file_err(
+                    &dir.join("model.safetensors"),
+                    format!("missing tensor {name}"),
+                )
+            })?;
+            var.set(w)?;
+        }
+        t.ema = load_tensors(&dir.join("ema.safetensors"), device)?;
+        let opt = load_tensors(&dir.join("optimizer.safetensors"), device)?;
+        for name in t.vars.keys() {
+            let get = |p: &str| {
+                opt.get(&format!("{p}.{name}")).cloned().ok_or_else(|| {
+                    file_err(
+                        &dir.join("optimizer.safetensors"),
+                        format!("missing moment {p}.{name}"),
+                    )
+                })
+            };
+            t.opt.m.insert(name.clone(), get("m")?);
+            t.opt.v.insert(name.clone(), get("v")?);
+        }
+        t.state = read_json(&state_path)?;
+        write_json(&dir.join("train.json"), &t.config)?;
+        Ok(t)
+    }
+
+    /// Saves a complete checkpoint; `state.json` goes last so a crash mid-way leaves the previous
+    /// checkpoint valid... except for the weight files already replaced, which are then one step
+    /// ahead of their state: harmless for training.
+    pub fn checkpoint(&self, dir: &Path) -> Result<()> {
+        let weights: BTreeMap<String, Tensor> = self
+            .vars
+            .iter()
+            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+            .collect();
+        save_tensors(&dir.join("model.safetensors"), &weights)?;
+        save_tensors(&dir.join("ema.safetensors"), &self.ema)?;
+        let mut opt = BTreeMap::new();
+        for (k, m) in &self.opt.m {
+            opt.insert(format!("m.{k}"), m.clone());
+        }
+        for (k, v) in &self.opt.v {
+            opt.insert(format!("v.{k}"), v.clone());
+        }
+        save_tensors(&dir.join("optimizer.safetensors"), &opt)?;
+        write_json(&dir.join("state.json"), &self.state)
+    }
+
+    /// Rectified-flow loss of a batch (used by training and by tests).
+    pub fn loss(
+        &self,
+        data: &PairData,
+        indices: &[usize],
+        rng: &mut impl Rng,
+    ) -> candle_core::Result<Tensor> {
+        let cfg = &self.config;
+        let b = indices.len();
+        let flips: Vec<bool> = (0..b).map(|_| rng.random_bool(0.5)).collect();
+        let (x0, cond) = data.batch(indices, &flips, &self.device)?;
+        // Other views for cross-view conditioning (own view with rho = 0 when none is drawn).
+        let mut others = Vec::with_capacity(b);
+        let mut rho = Vec::with_capacity(b);
+        for &i in indices {
+            match data
+                .random_other_view(i, rng)
+                .filter(|_| rng.random_bool(cfg.cross_view_probability))
+            {
+                Some(j) => {
+                    others.push(j);
+                    rho.push(rng.random_range(0.0..1.0f32));
+                }
+                None => {
+                    others.push(i);
+                    rho.push(0.0);
+                }
+            }
+        }
+        let (_, cond_other) = data.batch(&others, &flips, &self.device)?;
+        let tokens = self.model.encode(&Tensor::cat(&[&cond, &cond_other], 0)?)?;
+        let own = tokens.narrow(0, 0, b)?;
+        let other = tokens.narrow(0, b, b)?;
+        let cond_tokens = mix_views(&own, &other, &Tensor::from_vec(rho, b, &self.device)?)?;
+        let t = Tensor::from_vec(
+            sample_timesteps(b, cfg.timestep_shift, rng),
+            b,
+            &self.device,
+        )?;
+        let eps = randn(x0.shape(), rng, &self.device)?;
+        let x_t = interpolate(&x0, &eps, &t)?;
+        let v = self.model.forward(&x_t, &t, &cond, &cond_tokens)?;
+        (v - velocity_target(&x0, &eps)?)?.sqr()?.mean_all()
+    }
+
+    /// One optimisation step on a random batch.
+    pub fn step(&mut self, data: &PairData) -> Result<StepReport> {
+        let step = self.state.step;
+        let mut rng = ChaCha8Rng::seed_from_u64(
+            self.config.seed ^ (step as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+        );
+        let indices: Vec<usize> = (0..self.config.batch_size)
+            .map(|_| rng.random_range(0..data.len()))
+            .collect();
+        let loss = self.loss(data, &indices, &mut rng)?;
+        let grads = loss.backward()?;
+        let mut g: BTreeMap<String, Tensor> = BTreeMap::new();
+        let mut sq = 0f64;
+        for (name, var) in &self.vars {
+            if let Some(t) = grads.get(var) {
+                sq += t.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
+                g.insert(name.clone(), t.clone());
+            }
+        }
+        let norm = sq.sqrt();
+        if !norm.is_finite() {
+            return Err(TrainError::Config(format!(
+                "gradient norm is {norm} at step {step}: training diverged"
+            )));
+        }
+        let scale = if norm > self.config.grad_clip {
+            self.config.grad_clip / norm
+        } else {
+            1.0
+        };
+        if scale < 1.0 {
+            for t in g.values_mut() {
+                *t = (&*t * scale)?;
+            }
+        }
+        let lr = learning_rate(&self.config, step);
+        self.opt
+            .step(&self.vars, &g, step + 1, lr, self.config.weight_decay)?;
+        // EMA with a warm-up so early checkpoints are usable.
+        let decay = self
+            .config
+            .ema_decay
+            .min((1.0 + step as f64) / (10.0 + step as f64));
+        for (name, var) in &self.vars {
+            if let Some(e) = self.ema.get_mut(name) {
+                *e = ((&*e * decay)? + (var.as_tensor() * (1.0 - decay))?)?;
+            }
+        }
+        let loss = loss.to_scalar::<f32>()?;
+        self.state.step += 1;
+        self.state.last_loss = loss;
+        Ok(StepReport {
+            step: self.state.step,
+            loss,
+            learning_rate: lr,
+            grad_norm: norm as f32,
+        })
+    }
+
+    /// Appends a line to the loss log.
+    pub fn log(dir: &Path, r: &StepReport) -> Result<()> {
+        let path = dir.join("loss.csv");
+        let new = !path.exists();
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(|e| file_err(&path, e))?;
+        if new {
+            writeln!(f, "step,loss,learning_rate,grad_norm").map_err(|e| file_err(&path, e))?;
+        }
+        writeln!(
+            f,
+            "{},{},{},{}",
+            r.step, r.loss, r.learning_rate, r.grad_norm
+        )
+        .map_err(|e| file_err(&path, e))
+    }
+
+    pub fn ema_weights(&self) -> &BTreeMap<String, Tensor> {
+        &self.ema
+    }
+}
