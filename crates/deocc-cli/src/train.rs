@@ -52,7 +52,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let mut data = PairData::load(&files)?;
     if let Some(n) = a.limit_pairs {
         let mut set = data.set.clone();
-        truncate_pairs(&mut set, n);
+        set.truncate(n);
         data = PairData::new(set);
     }
     if data.resolution() != model.resolution {
@@ -112,19 +112,4 @@ pub fn run(a: TrainArgs) -> Result<()> {
         a.run.display()
     );
     Ok(())
-}
-
-fn truncate_pairs(s: &mut deocc_synth::pairs::PairSet, n: usize) {
-    let n = n.min(s.len());
-    let px = s.pixels();
-    s.crop_rgb.truncate(n * px * 3);
-    s.whole_rgb.truncate(n * px * 3);
-    s.visible_mask.truncate(n * px);
-    s.amodal_mask.truncate(n * px);
-    s.visible_depth.truncate(n * px);
-    s.whole_depth.truncate(n * px);
-    s.group.truncate(n);
-    s.category.truncate(n);
-    s.held_out.truncate(n);
-    s.occlusion.truncate(n);
 }

@@ -83,6 +83,22 @@ impl PairSet {
     pub fn pixels(&self) -> usize {
         (self.resolution * self.resolution) as usize
     }
+    /// Keeps the first `n` pairs.
+    pub fn truncate(&mut self, n: usize) {
+        let n = n.min(self.len());
+        let px = self.pixels();
+        self.crop_rgb.truncate(n * px * 3);
+        self.whole_rgb.truncate(n * px * 3);
+        self.visible_mask.truncate(n * px);
+        self.amodal_mask.truncate(n * px);
+        self.visible_depth.truncate(n * px);
+        self.whole_depth.truncate(n * px);
+        self.group.truncate(n);
+        self.category.truncate(n);
+        self.held_out.truncate(n);
+        self.occlusion.truncate(n);
+    }
+
     pub fn extend(&mut self, o: &PairSet) {
         self.resolution = o.resolution;
         self.crop_rgb.extend_from_slice(&o.crop_rgb);

@@ -1,0 +1,166 @@
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use deocc_synth::dataset::{preset, render_full_scene, write_scene};
+use deocc_synth::pairs::{load_pairs, save_pairs, scene_pairs, PairConfig};
+use deocc_synth::render::{render_object, render_scene, SceneTriangles};
+use deocc_synth::scene::{generate_scene, SceneConfig};
+use nalgebra::Point3;
+use sha2::{Digest, Sha256};
+
+fn small_config() -> SceneConfig {
+    SceneConfig { width: 160, height: 120, views: 3, gt_points_per_m2: 2000.0, ..SceneConfig::default() }
+}
+
+fn hash_tree(dir: &Path) -> BTreeMap<String, String> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let h = Sha256::digest(std::fs::read(&p).unwrap());
+                out.insert(p.strip_prefix(dir).unwrap().display().to_string(), format!("{h:x}"));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn same_config_and_seed_give_byte_identical_files() {
+    let cfg = small_config();
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    write_scene(a.path(), &cfg, &render_full_scene(&cfg, 7).unwrap()).unwrap();
+    write_scene(b.path(), &cfg, &render_full_scene(&cfg, 7).unwrap()).unwrap();
+    let (ha, hb) = (hash_tree(a.path()), hash_tree(b.path()));
+    assert!(ha.len() > 10, "expected many files, got {}", ha.len());
+    assert_eq!(ha, hb);
+    // And another seed differs.
+    let c = tempfile::tempdir().unwrap();
+    write_scene(c.path(), &cfg, &render_full_scene(&cfg, 8).unwrap()).unwrap();
+    assert_ne!(ha.get("rgb/000000.png"), hash_tree(c.path()).get("rgb/000000.png"));
+}
+
+/// Distance from a point to a triangle (brute force, for the oracle).
+fn point_triangle_distance(p: &Point3<f32>, t: &[Point3<f32>; 3]) -> f32 {
+    let (a, b, c) = (t[0], t[1], t[2]);
+    let n = (b - a).cross(&(c - a));
+    let nn = n.norm();
+    if nn > 1e-12 {
+        let n = n / nn;
+        let d = (p - a).dot(&n);
+        let q = p - n * d;
+        let inside = [(a, b), (b, c), (c, a)].iter().all(|(u, v)| (v - u).cross(&(q - u)).dot(&n) >= -1e-9);
+        if inside {
+            return d.abs();
+        }
+    }
+    let seg = |u: Point3<f32>, v: Point3<f32>| {
+        let e = v - u;
+        let s = ((p - u).dot(&e) / e.norm_squared().max(1e-20)).clamp(0.0, 1.0);
+        (p - (u + e * s)).norm()
+    };
+    seg(a, b).min(seg(b, c)).min(seg(c, a))
+}
+
+#[test]
+fn visible_pixels_lie_on_their_instance_surface_within_2mm() {
+    let cfg = small_config();
+    let scene = generate_scene(&cfg, 11).unwrap();
+    let tris = SceneTriangles::new(&scene);
+    let camera = scene.cameras[0];
+    let frame = render_scene(&camera, &scene, &tris);
+    let w = frame.width as usize;
+    let mut checked = 0;
+    for i in (0..frame.depth_m.len()).step_by(7) {
+        let id = frame.instance[i];
+        if id == 0 {
+            continue;
+        }
+        let p = camera.unproject_pixel((i % w) as u32, (i / w) as u32, frame.depth_m[i]);
+        let k = scene.objects.iter().position(|o| o.instance_id == id).unwrap();
+        let d = tris.object_ranges[k].clone().map(|t| point_triangle_distance(&p, &tris.corners[t])).fold(f32::INFINITY, f32::min);
+        assert!(d < 0.002, "pixel {i} of instance {id} is {d} m off its surface");
+        checked += 1;
+    }
+    assert!(checked > 500);
+}
+
+#[test]
+fn amodal_masks_contain_visible_masks_and_equal_them_without_occluders() {
+    let cfg = small_config();
+    let rendered = render_full_scene(&cfg, 12).unwrap();
+    let mut unoccluded_seen = false;
+    for view in &rendered.views {
+        for (id, mask) in &view.amodal {
+            for (i, &inst) in view.frame.instance.iter().enumerate() {
+                if inst == *id {
+                    assert!(mask[i], "visible pixel {i} of {id} outside its amodal mask");
+                }
+            }
+        }
+    }
+    // An object alone in the scene: amodal == visible exactly.
+    let mut scene = generate_scene(&cfg, 12).unwrap();
+    let keep = scene.objects.iter().position(|o| o.category == deocc_synth::shapes::Category::Table).unwrap();
+    scene.objects = vec![scene.objects[keep].clone()];
+    let tris = SceneTriangles::new(&scene);
+    for cam in &scene.cameras {
+        let frame = render_scene(cam, &scene, &tris);
+        let alone = render_object(cam, &scene, &tris, 0);
+        assert_eq!(frame.instance, alone.instance);
+        unoccluded_seen |= frame.instance.iter().any(|&i| i != 0);
+    }
+    assert!(unoccluded_seen);
+}
+
+#[test]
+fn ground_truth_flags_some_points_seen_and_some_hidden() {
+    let cfg = small_config();
+    let r = render_full_scene(&cfg, 13).unwrap();
+    let seen = r.ground_truth.seen.iter().filter(|&&s| s).count();
+    let n = r.ground_truth.cloud.len();
+    assert!(n > 10_000);
+    assert!(seen > n / 10 && seen < n * 9 / 10, "{seen} of {n} seen");
+}
+
+#[test]
+fn pairs_are_consistent_and_round_trip() {
+    let scene = generate_scene(&SceneConfig { views: 4, ..SceneConfig::default() }, 14).unwrap();
+    let set = scene_pairs(&scene, &PairConfig { keep_unoccluded: 1.0, ..PairConfig::default() }, 0).unwrap();
+    assert!(set.len() > 5);
+    let px = set.pixels();
+    for k in 0..set.len() {
+        let vis = &set.visible_mask[k * px..(k + 1) * px];
+        let amo = &set.amodal_mask[k * px..(k + 1) * px];
+        // Visible is a subset of amodal (up to the rasteriser's shared-edge pixels).
+        let outside = vis.iter().zip(amo).filter(|(&v, &a)| v > 0 && a == 0).count();
+        assert!(outside <= 2, "pair {k}: {outside} visible pixels outside the amodal mask");
+        // Outside the amodal mask the whole-object image is white.
+        for i in 0..px {
+            if amo[i] == 0 {
+                assert_eq!(&set.whole_rgb[3 * (k * px + i)..3 * (k * px + i) + 3], &[255, 255, 255]);
+            }
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("p.safetensors");
+    save_pairs(&p, &set).unwrap();
+    assert_eq!(load_pairs(&p).unwrap(), set);
+    std::fs::write(&p, b"garbage").unwrap();
+    let e = load_pairs(&p).unwrap_err().to_string();
+    assert!(e.contains("p.safetensors"), "{e}");
+}
+
+#[test]
+fn bench_v1_is_fixed() {
+    let p = preset("bench-v1").unwrap();
+    assert_eq!(p.seeds.len(), 50);
+    assert_eq!(p.config.views, 10);
+    assert_eq!((p.config.width, p.config.height), (640, 480));
+    assert!(p.config.held_out_shapes);
+    assert!(preset("bench-v2").is_err());
+}
