@@ -128,8 +128,8 @@ fn linear_attention_equals_a_naive_loop() {
                         .map(|c| at(&qv, bi, hi, i, c).max(0.0) * at(&kv, bi, hi, j, c).max(0.0))
                         .sum();
                     den += s;
-                    for c in 0..d {
-                        num[c] += s * at(&vv, bi, hi, j, c);
+                    for (c, acc) in num.iter_mut().enumerate() {
+                        *acc += s * at(&vv, bi, hi, j, c);
                     }
                 }
                 for c in 0..d {

@@ -401,7 +401,7 @@ fn load_user_meshes(config: &SceneConfig) -> Result<Vec<(TriMesh, f32, f32)>, Sy
                 .bounds()
                 .ok_or_else(|| SynthError::Config(format!("{}: empty mesh", u.path.display())))?;
             let extent = (hi - lo).max();
-            if extent <= 0.0 || !(u.size_m > 0.0) {
+            if extent <= 0.0 || u.size_m.is_nan() || u.size_m <= 0.0 {
                 return Err(SynthError::Config(format!(
                     "{}: degenerate mesh or size",
                     u.path.display()

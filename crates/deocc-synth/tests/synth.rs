@@ -140,8 +140,8 @@ fn pairs_are_consistent_and_round_trip() {
         let outside = vis.iter().zip(amo).filter(|(&v, &a)| v > 0 && a == 0).count();
         assert!(outside <= 2, "pair {k}: {outside} visible pixels outside the amodal mask");
         // Outside the amodal mask the whole-object image is white.
-        for i in 0..px {
-            if amo[i] == 0 {
+        for (i, &a) in amo.iter().enumerate() {
+            if a == 0 {
                 assert_eq!(&set.whole_rgb[3 * (k * px + i)..3 * (k * px + i) + 3], &[255, 255, 255]);
             }
         }
