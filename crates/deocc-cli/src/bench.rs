@@ -1,11 +1,199 @@
-//! `deocc bench`: speed against a peer, written to a report.
+//! `deocc bench`: our speed against a peer on the same data in the same run, written to a report.
 
-use anyhow::Result;
-use clap::Subcommand;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use deocc_geometry::align::{icp, IcpMethod, IcpOptions, IcpTarget};
+use deocc_geometry::metrics::chamfer;
+use deocc_geometry::normals::estimate_normals;
+use deocc_geometry::voxel::voxel_downsample;
+use deocc_geometry::{KdIndex, PointCloud};
+use deocc_io::{write_point_cloud, PlyEncoding};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
 
 #[derive(Subcommand)]
-pub enum BenchCommand {}
+pub enum BenchCommand {
+    /// Geometry core against Open3D: kd-tree, nearest neighbours, Chamfer, voxels, normals, ICP.
+    Geometry(GeometryArgs),
+}
+
+#[derive(Args)]
+pub struct GeometryArgs {
+    /// Report file (JSON); a Markdown table is written beside it (.md).
+    #[arg(long, default_value = "bench/geometry.json")]
+    json: PathBuf,
+    /// Points in cloud A (B gets half).
+    #[arg(long, default_value_t = 1_000_000)]
+    points: usize,
+    /// Python interpreter with open3d installed.
+    #[arg(long, default_value = "python3")]
+    python: String,
+}
 
 pub fn run(cmd: BenchCommand) -> Result<()> {
-    match cmd {}
+    match cmd {
+        BenchCommand::Geometry(a) => geometry(a),
+    }
+}
+
+#[derive(Serialize)]
+struct Row {
+    operation: String,
+    ours_seconds: f64,
+    open3d_seconds: f64,
+    /// ours / Open3D: below 1 means we are faster.
+    ratio: f64,
+    ours_value: Option<f64>,
+    open3d_value: Option<f64>,
+    relative_difference: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct Report {
+    points_a: usize,
+    points_b: usize,
+    threads: usize,
+    open3d_version: String,
+    rows: Vec<Row>,
+}
+
+fn median_time<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
+    let mut times = Vec::new();
+    let mut out = None;
+    for _ in 0..repeats {
+        let t0 = Instant::now();
+        out = Some(f()?);
+        times.push(t0.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    Ok((times[times.len() / 2], out.context("no repetition ran")?))
+}
+
+/// Surface points of a benchmark scene (so normals and ICP see real structure), `n` of them, and a
+/// half-size subset moved by 1 degree / 1 cm with 1 mm noise.
+fn bench_clouds(n: usize) -> Result<(Vec<Point3<f32>>, Vec<Point3<f32>>)> {
+    use deocc_synth::render::SceneTriangles;
+    let scene = deocc_synth::scene::generate_scene(&deocc_synth::scene::SceneConfig::default(), 9_000_000)?;
+    let tris = SceneTriangles::new(&scene);
+    let area: f64 = tris.corners.iter().map(|c| 0.5 * (c[1] - c[0]).cross(&(c[2] - c[0])).norm() as f64).sum();
+    let density = (1.2 * n as f64 / area) as f32;
+    let mut pts = deocc_synth::ground_truth::sample_surfaces(&scene, &tris, density, 1).positions;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    for i in (1..pts.len()).rev() {
+        pts.swap(i, rng.random_range(0..=i));
+    }
+    if pts.len() < n {
+        bail!("could only sample {} points", pts.len());
+    }
+    pts.truncate(n);
+    let motion = Isometry3::from_parts(Translation3::new(0.01, -0.005, 0.005), UnitQuaternion::from_euler_angles(0.01, 0.0, 0.015));
+    let b = pts[..n / 2]
+        .iter()
+        .map(|p| {
+            let q = motion.transform_point(p);
+            q + nalgebra::Vector3::new(rng.random_range(-0.001..0.001), rng.random_range(-0.001..0.001), rng.random_range(-0.001..0.001))
+        })
+        .collect();
+    Ok((pts, b))
+}
+
+fn geometry(a: GeometryArgs) -> Result<()> {
+    let dir = tempdir()?;
+    let (pa, pb) = bench_clouds(a.points)?;
+    let (path_a, path_b, path_n) = (dir.join("a.ply"), dir.join("b.ply"), dir.join("a_normals.ply"));
+    write_point_cloud(&path_a, &PointCloud::from_positions(pa.clone()), PlyEncoding::BinaryLittleEndian)?;
+    write_point_cloud(&path_b, &PointCloud::from_positions(pb.clone()), PlyEncoding::BinaryLittleEndian)?;
+
+    let mut ours: Vec<(&str, f64, Option<f64>)> = Vec::new();
+    eprintln!("deocc: {} and {} points, {} threads", pa.len(), pb.len(), rayon::current_num_threads());
+    let (t, _) = median_time(3, || Ok(KdIndex::build(&pa)?))?;
+    ours.push(("kdtree_build", t, None));
+    let (t, d) = median_time(3, || {
+        let tree = KdIndex::build(&pa)?;
+        let d = tree.nearest_distances(&pb);
+        Ok(d.iter().map(|&x| x as f64).sum::<f64>() / d.len() as f64)
+    })?;
+    ours.push(("nearest_neighbour", t, Some(d)));
+    let (t, c) = median_time(3, || Ok(chamfer(&pa, &pb)?.2))?;
+    ours.push(("chamfer", t, Some(c)));
+    let cloud_a = PointCloud::from_positions(pa.clone());
+    let (t, down) = median_time(3, || Ok(voxel_downsample(&cloud_a, 0.01)?))?;
+    ours.push(("voxel_downsample", t, Some(down.len() as f64)));
+    let (t, normals) = median_time(1, || Ok(estimate_normals(&pa, 30)?))?;
+    ours.push(("normals", t, None));
+    let mut with_normals = PointCloud::from_positions(pa.clone());
+    with_normals.normals = Some(normals.clone());
+    write_point_cloud(&path_n, &with_normals, PlyEncoding::BinaryLittleEndian)?;
+    for (name, method) in [("icp_point_to_point", IcpMethod::PointToPoint), ("icp_point_to_plane", IcpMethod::PointToPlane)] {
+        let opts = IcpOptions { method, max_correspondence_m: 0.05, max_iterations: 30, relative_fitness: 0.0, relative_rmse: 0.0 };
+        let (t, r) = median_time(1, || {
+            // The tree build is part of the registration, as in Open3D's registration_icp.
+            let target = IcpTarget::new(&pa, Some(&normals))?;
+            Ok(icp(&pb, &target, &Isometry3::identity(), &opts)?)
+        })?;
+        ours.push((name, t, Some(r.inlier_rmse)));
+    }
+
+    eprintln!("open3d: running scripts/bench_open3d.py");
+    let o3d_json = dir.join("open3d.json");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/bench_open3d.py");
+    let status = Command::new(&a.python)
+        .arg(&script)
+        .args([&path_a, &path_b, &path_n, &o3d_json])
+        .status()
+        .with_context(|| format!("cannot run {}", a.python))?;
+    if status.code() == Some(3) {
+        bail!("Open3D is not installed for {}: run `bash scripts/setup-peers.sh` (pip install open3d==0.20.0, apt libusb-1.0-0)", a.python);
+    }
+    if !status.success() {
+        bail!("{} failed ({status})", script.display());
+    }
+    let o3d: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&o3d_json)?)?;
+    let mut rows = Vec::new();
+    for (name, t, value) in ours {
+        let entry = &o3d[name];
+        let ot = entry["seconds"].as_f64().with_context(|| format!("open3d result lacks {name}"))?;
+        let ov = entry["value"].as_f64();
+        // For normals Open3D's value is already the agreement (mean |dot|) with ours.
+        let (value, ov) = if name == "normals" { (ov, Some(1.0)) } else { (value, ov) };
+        let rel = match (value, ov) {
+            (Some(x), Some(y)) => Some((x - y).abs() / y.abs().max(1e-12)),
+            _ => None,
+        };
+        rows.push(Row { operation: name.into(), ours_seconds: t, open3d_seconds: ot, ratio: t / ot, ours_value: value, open3d_value: ov, relative_difference: rel });
+    }
+    let report = Report {
+        points_a: pa.len(),
+        points_b: pb.len(),
+        threads: rayon::current_num_threads(),
+        open3d_version: o3d["open3d_version"].as_str().unwrap_or("?").into(),
+        rows,
+    };
+    if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).with_context(|| format!("{}: cannot create", parent.display()))?;
+    }
+    deocc_io::cameras::write_json(&a.json, &report)?;
+    let mut md = format!(
+        "| operation | deocc (s) | Open3D {} (s) | ratio | result difference |\n|---|---|---|---|---|\n",
+        report.open3d_version
+    );
+    for r in &report.rows {
+        let diff = r.relative_difference.map(|d| format!("{d:.1e}")).unwrap_or_else(|| "-".into());
+        md.push_str(&format!("| {} | {:.3} | {:.3} | {:.2} | {} |\n", r.operation, r.ours_seconds, r.open3d_seconds, r.ratio, diff));
+    }
+    deocc_io::atomic::write_bytes_atomic(&a.json.with_extension("md"), md.as_bytes())?;
+    print!("{md}");
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
+
+fn tempdir() -> Result<PathBuf> {
+    let dir = std::env::temp_dir().join(format!("deocc-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    Ok(dir)
 }

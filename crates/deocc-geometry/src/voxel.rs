@@ -8,18 +8,19 @@ use rayon::prelude::*;
 use crate::cloud::PointCloud;
 use crate::error::{GeometryError, Result};
 
-/// Integer voxel coordinates of a point on a grid with its corner at `origin`.
-fn voxel_key(p: &Point3<f32>, origin: &Point3<f32>, inv: f32) -> [i32; 3] {
+/// Integer voxel coordinates of a point on a grid with its corner at `origin`, computed in f64 as
+/// Open3D does, so both form exactly the same voxels.
+fn voxel_key(p: &Point3<f32>, origin: &Point3<f64>, voxel_m: f64) -> [i32; 3] {
     [
-        ((p.x - origin.x) * inv).floor() as i32,
-        ((p.y - origin.y) * inv).floor() as i32,
-        ((p.z - origin.z) * inv).floor() as i32,
+        ((p.x as f64 - origin.x) / voxel_m).floor() as i32,
+        ((p.y as f64 - origin.y) / voxel_m).floor() as i32,
+        ((p.z as f64 - origin.z) / voxel_m).floor() as i32,
     ]
 }
 
-fn check_voxel(voxel_m: f32) -> Result<f32> {
+fn check_voxel(voxel_m: f64) -> Result<f64> {
     if voxel_m.is_finite() && voxel_m > 0.0 {
-        Ok(1.0 / voxel_m)
+        Ok(voxel_m)
     } else {
         Err(GeometryError::InvalidArgument(format!(
             "voxel size must be positive and finite, got {voxel_m}"
@@ -33,17 +34,17 @@ fn check_voxel(voxel_m: f32) -> Result<f32> {
 ///
 /// The grid is anchored as Open3D anchors it (min bound minus half a voxel), so the same voxels
 /// are formed. Output order is by voxel key, deterministic.
-pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f32) -> Result<PointCloud> {
-    let inv = check_voxel(voxel_m)?;
+pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> {
+    let voxel = check_voxel(voxel_m)?;
     let Some((lo, _)) = cloud.bounds() else {
         return Ok(PointCloud::default());
     };
-    let origin = lo - Vector3::repeat(voxel_m * 0.5);
+    let origin = lo.cast::<f64>() - Vector3::repeat(voxel * 0.5);
     let mut keyed: Vec<([i32; 3], u32)> = cloud
         .positions
         .par_iter()
         .enumerate()
-        .map(|(i, p)| (voxel_key(p, &origin, inv), i as u32))
+        .map(|(i, p)| (voxel_key(p, &origin, voxel), i as u32))
         .collect();
     keyed.par_sort_unstable();
     // Group boundaries.
@@ -130,9 +131,9 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f32) -> Result<PointCloud> 
 pub fn fuse_generated(
     observed: &PointCloud,
     generated: &PointCloud,
-    voxel_m: f32,
+    voxel_m: f64,
 ) -> Result<PointCloud> {
-    let inv = check_voxel(voxel_m)?;
+    let voxel = check_voxel(voxel_m)?;
     let mut out = observed.clone();
     if out.generated.is_none() {
         out.generated = Some(vec![0; out.len()]);
@@ -140,16 +141,16 @@ pub fn fuse_generated(
     if generated.is_empty() {
         return Ok(out);
     }
-    let origin = Point3::origin();
+    let origin = Point3::<f64>::origin();
     let occupied: HashSet<[i32; 3]> = observed
         .positions
         .iter()
-        .map(|p| voxel_key(p, &origin, inv))
+        .map(|p| voxel_key(p, &origin, voxel))
         .collect();
     let mut gen = generated.clone();
     gen.generated = Some(vec![1; gen.len()]);
     let gen = voxel_downsample(&gen, voxel_m)?;
-    let fresh = gen.filter(|i| !occupied.contains(&voxel_key(&gen.positions[i], &origin, inv)));
+    let fresh = gen.filter(|i| !occupied.contains(&voxel_key(&gen.positions[i], &origin, voxel)));
     out.append(&fresh);
     Ok(out)
 }

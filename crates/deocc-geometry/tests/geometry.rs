@@ -403,11 +403,11 @@ fn voxel_downsample_keeps_one_point_per_voxel_and_observed_wins() {
     let voxel = 0.2;
     let down = voxel_downsample(&cloud, voxel).unwrap();
     let (lo, _) = cloud.bounds().unwrap();
-    let origin = lo - Vector3::repeat(voxel * 0.5);
+    let origin = lo.cast::<f64>() - Vector3::repeat(voxel * 0.5);
     let keys: std::collections::HashSet<[i32; 3]> = pts
         .iter()
         .map(|p| {
-            let q = (p - origin) / voxel;
+            let q = (p.cast::<f64>() - origin) / voxel;
             [q.x.floor() as i32, q.y.floor() as i32, q.z.floor() as i32]
         })
         .collect();

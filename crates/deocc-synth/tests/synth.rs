@@ -9,7 +9,13 @@ use nalgebra::Point3;
 use sha2::{Digest, Sha256};
 
 fn small_config() -> SceneConfig {
-    SceneConfig { width: 160, height: 120, views: 3, gt_points_per_m2: 2000.0, ..SceneConfig::default() }
+    SceneConfig {
+        width: 160,
+        height: 120,
+        views: 3,
+        gt_points_per_m2: 2000.0,
+        ..SceneConfig::default()
+    }
 }
 
 fn hash_tree(dir: &Path) -> BTreeMap<String, String> {
@@ -22,7 +28,10 @@ fn hash_tree(dir: &Path) -> BTreeMap<String, String> {
                 stack.push(p);
             } else {
                 let h = Sha256::digest(std::fs::read(&p).unwrap());
-                out.insert(p.strip_prefix(dir).unwrap().display().to_string(), format!("{h:x}"));
+                out.insert(
+                    p.strip_prefix(dir).unwrap().display().to_string(),
+                    format!("{h:x}"),
+                );
             }
         }
     }
@@ -41,7 +50,10 @@ fn same_config_and_seed_give_byte_identical_files() {
     // And another seed differs.
     let c = tempfile::tempdir().unwrap();
     write_scene(c.path(), &cfg, &render_full_scene(&cfg, 8).unwrap()).unwrap();
-    assert_ne!(ha.get("rgb/000000.png"), hash_tree(c.path()).get("rgb/000000.png"));
+    assert_ne!(
+        ha.get("rgb/000000.png"),
+        hash_tree(c.path()).get("rgb/000000.png")
+    );
 }
 
 /// Distance from a point to a triangle (brute force, for the oracle).
@@ -53,7 +65,9 @@ fn point_triangle_distance(p: &Point3<f32>, t: &[Point3<f32>; 3]) -> f32 {
         let n = n / nn;
         let d = (p - a).dot(&n);
         let q = p - n * d;
-        let inside = [(a, b), (b, c), (c, a)].iter().all(|(u, v)| (v - u).cross(&(q - u)).dot(&n) >= -1e-9);
+        let inside = [(a, b), (b, c), (c, a)]
+            .iter()
+            .all(|(u, v)| (v - u).cross(&(q - u)).dot(&n) >= -1e-9);
         if inside {
             return d.abs();
         }
@@ -81,9 +95,19 @@ fn visible_pixels_lie_on_their_instance_surface_within_2mm() {
             continue;
         }
         let p = camera.unproject_pixel((i % w) as u32, (i / w) as u32, frame.depth_m[i]);
-        let k = scene.objects.iter().position(|o| o.instance_id == id).unwrap();
-        let d = tris.object_ranges[k].clone().map(|t| point_triangle_distance(&p, &tris.corners[t])).fold(f32::INFINITY, f32::min);
-        assert!(d < 0.002, "pixel {i} of instance {id} is {d} m off its surface");
+        let k = scene
+            .objects
+            .iter()
+            .position(|o| o.instance_id == id)
+            .unwrap();
+        let d = tris.object_ranges[k]
+            .clone()
+            .map(|t| point_triangle_distance(&p, &tris.corners[t]))
+            .fold(f32::INFINITY, f32::min);
+        assert!(
+            d < 0.002,
+            "pixel {i} of instance {id} is {d} m off its surface"
+        );
         checked += 1;
     }
     assert!(checked > 500);
@@ -105,7 +129,11 @@ fn amodal_masks_contain_visible_masks_and_equal_them_without_occluders() {
     }
     // An object alone in the scene: amodal == visible exactly.
     let mut scene = generate_scene(&cfg, 12).unwrap();
-    let keep = scene.objects.iter().position(|o| o.category == deocc_synth::shapes::Category::Table).unwrap();
+    let keep = scene
+        .objects
+        .iter()
+        .position(|o| o.category == deocc_synth::shapes::Category::Table)
+        .unwrap();
     scene.objects = vec![scene.objects[keep].clone()];
     let tris = SceneTriangles::new(&scene);
     for cam in &scene.cameras {
@@ -129,20 +157,45 @@ fn ground_truth_flags_some_points_seen_and_some_hidden() {
 
 #[test]
 fn pairs_are_consistent_and_round_trip() {
-    let scene = generate_scene(&SceneConfig { views: 4, ..SceneConfig::default() }, 14).unwrap();
-    let set = scene_pairs(&scene, &PairConfig { keep_unoccluded: 1.0, ..PairConfig::default() }, 0).unwrap();
+    let scene = generate_scene(
+        &SceneConfig {
+            views: 4,
+            ..SceneConfig::default()
+        },
+        14,
+    )
+    .unwrap();
+    let set = scene_pairs(
+        &scene,
+        &PairConfig {
+            keep_unoccluded: 1.0,
+            ..PairConfig::default()
+        },
+        0,
+    )
+    .unwrap();
     assert!(set.len() > 5);
     let px = set.pixels();
     for k in 0..set.len() {
         let vis = &set.visible_mask[k * px..(k + 1) * px];
         let amo = &set.amodal_mask[k * px..(k + 1) * px];
         // Visible is a subset of amodal (up to the rasteriser's shared-edge pixels).
-        let outside = vis.iter().zip(amo).filter(|(&v, &a)| v > 0 && a == 0).count();
-        assert!(outside <= 2, "pair {k}: {outside} visible pixels outside the amodal mask");
+        let outside = vis
+            .iter()
+            .zip(amo)
+            .filter(|(&v, &a)| v > 0 && a == 0)
+            .count();
+        assert!(
+            outside <= 2,
+            "pair {k}: {outside} visible pixels outside the amodal mask"
+        );
         // Outside the amodal mask the whole-object image is white.
         for (i, &a) in amo.iter().enumerate() {
             if a == 0 {
-                assert_eq!(&set.whole_rgb[3 * (k * px + i)..3 * (k * px + i) + 3], &[255, 255, 255]);
+                assert_eq!(
+                    &set.whole_rgb[3 * (k * px + i)..3 * (k * px + i) + 3],
+                    &[255, 255, 255]
+                );
             }
         }
     }
