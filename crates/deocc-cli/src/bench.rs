@@ -78,9 +78,14 @@ fn median_time<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f
 /// half-size subset moved by 1 degree / 1 cm with 1 mm noise.
 fn bench_clouds(n: usize) -> Result<(Vec<Point3<f32>>, Vec<Point3<f32>>)> {
     use deocc_synth::render::SceneTriangles;
-    let scene = deocc_synth::scene::generate_scene(&deocc_synth::scene::SceneConfig::default(), 9_000_000)?;
+    let scene =
+        deocc_synth::scene::generate_scene(&deocc_synth::scene::SceneConfig::default(), 9_000_000)?;
     let tris = SceneTriangles::new(&scene);
-    let area: f64 = tris.corners.iter().map(|c| 0.5 * (c[1] - c[0]).cross(&(c[2] - c[0])).norm() as f64).sum();
+    let area: f64 = tris
+        .corners
+        .iter()
+        .map(|c| 0.5 * (c[1] - c[0]).cross(&(c[2] - c[0])).norm() as f64)
+        .sum();
     let density = (1.2 * n as f64 / area) as f32;
     let mut pts = deocc_synth::ground_truth::sample_surfaces(&scene, &tris, density, 1).positions;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
@@ -91,12 +96,19 @@ fn bench_clouds(n: usize) -> Result<(Vec<Point3<f32>>, Vec<Point3<f32>>)> {
         bail!("could only sample {} points", pts.len());
     }
     pts.truncate(n);
-    let motion = Isometry3::from_parts(Translation3::new(0.01, -0.005, 0.005), UnitQuaternion::from_euler_angles(0.01, 0.0, 0.015));
+    let motion = Isometry3::from_parts(
+        Translation3::new(0.01, -0.005, 0.005),
+        UnitQuaternion::from_euler_angles(0.01, 0.0, 0.015),
+    );
     let b = pts[..n / 2]
         .iter()
         .map(|p| {
             let q = motion.transform_point(p);
-            q + nalgebra::Vector3::new(rng.random_range(-0.001..0.001), rng.random_range(-0.001..0.001), rng.random_range(-0.001..0.001))
+            q + nalgebra::Vector3::new(
+                rng.random_range(-0.001..0.001),
+                rng.random_range(-0.001..0.001),
+                rng.random_range(-0.001..0.001),
+            )
         })
         .collect();
     Ok((pts, b))
@@ -105,12 +117,29 @@ fn bench_clouds(n: usize) -> Result<(Vec<Point3<f32>>, Vec<Point3<f32>>)> {
 fn geometry(a: GeometryArgs) -> Result<()> {
     let dir = tempdir()?;
     let (pa, pb) = bench_clouds(a.points)?;
-    let (path_a, path_b, path_n) = (dir.join("a.ply"), dir.join("b.ply"), dir.join("a_normals.ply"));
-    write_point_cloud(&path_a, &PointCloud::from_positions(pa.clone()), PlyEncoding::BinaryLittleEndian)?;
-    write_point_cloud(&path_b, &PointCloud::from_positions(pb.clone()), PlyEncoding::BinaryLittleEndian)?;
+    let (path_a, path_b, path_n) = (
+        dir.join("a.ply"),
+        dir.join("b.ply"),
+        dir.join("a_normals.ply"),
+    );
+    write_point_cloud(
+        &path_a,
+        &PointCloud::from_positions(pa.clone()),
+        PlyEncoding::BinaryLittleEndian,
+    )?;
+    write_point_cloud(
+        &path_b,
+        &PointCloud::from_positions(pb.clone()),
+        PlyEncoding::BinaryLittleEndian,
+    )?;
 
     let mut ours: Vec<(&str, f64, Option<f64>)> = Vec::new();
-    eprintln!("deocc: {} and {} points, {} threads", pa.len(), pb.len(), rayon::current_num_threads());
+    eprintln!(
+        "deocc: {} and {} points, {} threads",
+        pa.len(),
+        pb.len(),
+        rayon::current_num_threads()
+    );
     let (t, _) = median_time(3, || Ok(KdIndex::build(&pa)?))?;
     ours.push(("kdtree_build", t, None));
     let (t, d) = median_time(3, || {
@@ -129,8 +158,17 @@ fn geometry(a: GeometryArgs) -> Result<()> {
     let mut with_normals = PointCloud::from_positions(pa.clone());
     with_normals.normals = Some(normals.clone());
     write_point_cloud(&path_n, &with_normals, PlyEncoding::BinaryLittleEndian)?;
-    for (name, method) in [("icp_point_to_point", IcpMethod::PointToPoint), ("icp_point_to_plane", IcpMethod::PointToPlane)] {
-        let opts = IcpOptions { method, max_correspondence_m: 0.05, max_iterations: 30, relative_fitness: 0.0, relative_rmse: 0.0 };
+    for (name, method) in [
+        ("icp_point_to_point", IcpMethod::PointToPoint),
+        ("icp_point_to_plane", IcpMethod::PointToPlane),
+    ] {
+        let opts = IcpOptions {
+            method,
+            max_correspondence_m: 0.05,
+            max_iterations: 30,
+            relative_fitness: 0.0,
+            relative_rmse: 0.0,
+        };
         let (t, r) = median_time(1, || {
             // The tree build is part of the registration, as in Open3D's registration_icp.
             let target = IcpTarget::new(&pa, Some(&normals))?;
@@ -157,15 +195,29 @@ fn geometry(a: GeometryArgs) -> Result<()> {
     let mut rows = Vec::new();
     for (name, t, value) in ours {
         let entry = &o3d[name];
-        let ot = entry["seconds"].as_f64().with_context(|| format!("open3d result lacks {name}"))?;
+        let ot = entry["seconds"]
+            .as_f64()
+            .with_context(|| format!("open3d result lacks {name}"))?;
         let ov = entry["value"].as_f64();
         // For normals Open3D's value is already the agreement (mean |dot|) with ours.
-        let (value, ov) = if name == "normals" { (ov, Some(1.0)) } else { (value, ov) };
+        let (value, ov) = if name == "normals" {
+            (ov, Some(1.0))
+        } else {
+            (value, ov)
+        };
         let rel = match (value, ov) {
             (Some(x), Some(y)) => Some((x - y).abs() / y.abs().max(1e-12)),
             _ => None,
         };
-        rows.push(Row { operation: name.into(), ours_seconds: t, open3d_seconds: ot, ratio: t / ot, ours_value: value, open3d_value: ov, relative_difference: rel });
+        rows.push(Row {
+            operation: name.into(),
+            ours_seconds: t,
+            open3d_seconds: ot,
+            ratio: t / ot,
+            ours_value: value,
+            open3d_value: ov,
+            relative_difference: rel,
+        });
     }
     let report = Report {
         points_a: pa.len(),
@@ -175,7 +227,8 @@ fn geometry(a: GeometryArgs) -> Result<()> {
         rows,
     };
     if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).with_context(|| format!("{}: cannot create", parent.display()))?;
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("{}: cannot create", parent.display()))?;
     }
     deocc_io::cameras::write_json(&a.json, &report)?;
     let mut md = format!(
@@ -183,8 +236,14 @@ fn geometry(a: GeometryArgs) -> Result<()> {
         report.open3d_version
     );
     for r in &report.rows {
-        let diff = r.relative_difference.map(|d| format!("{d:.1e}")).unwrap_or_else(|| "-".into());
-        md.push_str(&format!("| {} | {:.3} | {:.3} | {:.2} | {} |\n", r.operation, r.ours_seconds, r.open3d_seconds, r.ratio, diff));
+        let diff = r
+            .relative_difference
+            .map(|d| format!("{d:.1e}"))
+            .unwrap_or_else(|| "-".into());
+        md.push_str(&format!(
+            "| {} | {:.3} | {:.3} | {:.2} | {} |\n",
+            r.operation, r.ours_seconds, r.open3d_seconds, r.ratio, diff
+        ));
     }
     deocc_io::atomic::write_bytes_atomic(&a.json.with_extension("md"), md.as_bytes())?;
     print!("{md}");

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench;
+mod eval;
 mod progress;
 mod synth;
 mod train;
@@ -31,6 +32,9 @@ enum Command {
     Synth(synth::SynthCommand),
     /// Train GL-DoT (starts or resumes a run directory).
     Train(train::TrainArgs),
+    /// Evaluate on held-out data and write a report.
+    #[command(subcommand)]
+    Eval(eval::EvalCommand),
     /// Measure speed against a peer and write a report.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -49,6 +53,7 @@ fn main() -> ExitCode {
         Command::Synth(c) => synth::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Train(a) => train::run(a),
+        Command::Eval(c) => eval::run(c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

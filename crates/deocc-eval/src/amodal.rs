@@ -1,0 +1,284 @@
+//! 2-D amodal completion on held-out pairs: the figures of `deocc eval amodal`.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use candle_core::Tensor;
+use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
+use deocc_model::data::PairData;
+use deocc_model::infer::{Completer, Completion};
+use serde::Serialize;
+
+use crate::masks::{convex_hull_mask, iou};
+
+#[derive(Debug, Clone)]
+pub struct AmodalEvalOptions {
+    /// Pairs evaluated (the first N of the test set).
+    pub pairs: usize,
+    pub steps: Vec<usize>,
+    /// The step count of the per-level, cross-view and depth figures.
+    pub main_steps: usize,
+    pub rho: f32,
+    pub batch: usize,
+    pub seed: u64,
+}
+
+impl Default for AmodalEvalOptions {
+    fn default() -> Self {
+        Self {
+            pairs: 120,
+            steps: vec![1, 2, 4, 8, 50],
+            main_steps: 4,
+            rho: 0.5,
+            batch: 16,
+            seed: 0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct GroupFigures {
+    pub pairs: usize,
+    pub miou_model: f64,
+    pub miou_visible: f64,
+    pub miou_convex_hull: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CrossViewFigures {
+    pub pairs: usize,
+    pub miou_rho_0: f64,
+    pub miou_rho: f64,
+    pub rho: f32,
+    pub gain: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct DepthFigures {
+    pub pairs: usize,
+    /// Mean absolute error of relative depth on the hidden part (amodal minus visible) after the
+    /// Huber fit of the prediction to the visible depth. Units: crop widths.
+    pub mae_hidden_model: f64,
+    /// The same with the hidden part filled with the median visible depth.
+    pub mae_hidden_median_baseline: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct SpeedFigures {
+    pub steps: usize,
+    pub completions_per_second_batch_1: f64,
+    pub completions_per_second_batch_8: f64,
+    pub threads: usize,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct AmodalReport {
+    pub pairs: usize,
+    pub resolution: usize,
+    /// mIoU of the predicted amodal mask per number of sampling steps.
+    pub miou_by_steps: BTreeMap<usize, f64>,
+    pub miou_baseline_visible: f64,
+    pub miou_baseline_convex_hull: f64,
+    pub main_steps: usize,
+    /// Figures at `main_steps`, by occlusion level (light: 10-40% hidden, heavy: over 40%).
+    pub light: GroupFigures,
+    pub heavy: GroupFigures,
+    pub held_out_shapes: GroupFigures,
+    pub cross_view: CrossViewFigures,
+    pub depth: DepthFigures,
+    pub speed: SpeedFigures,
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    if n == 0 {
+        f64::NAN
+    } else {
+        s / n as f64
+    }
+}
+
+fn complete_all(
+    c: &Completer,
+    data: &PairData,
+    idx: &[usize],
+    steps: usize,
+    rho: f32,
+    opts: &AmodalEvalOptions,
+) -> candle_core::Result<Vec<Completion>> {
+    let mut out = Vec::with_capacity(idx.len());
+    let dev = c.device.clone();
+    for chunk in idx.chunks(opts.batch.max(1)) {
+        let flips = vec![false; chunk.len()];
+        let (_, cond) = data.batch(chunk, &flips, &dev)?;
+        let others: Vec<Vec<Tensor>> = if rho > 0.0 {
+            chunk
+                .iter()
+                .map(|&i| {
+                    data.other_views(i)
+                        .iter()
+                        .map(|&j| data.batch(&[j], &[false], &dev).map(|b| b.1))
+                        .collect::<candle_core::Result<Vec<_>>>()
+                })
+                .collect::<candle_core::Result<_>>()?
+        } else {
+            Vec::new()
+        };
+        out.extend(
+            c.complete(&cond, &others, rho, steps, opts.seed)
+                .map_err(|e| candle_core::Error::msg(e.to_string()))?,
+        );
+    }
+    Ok(out)
+}
+
+fn mask_of(m: &[u8]) -> Vec<bool> {
+    m.iter().map(|&v| v > 0).collect()
+}
+
+/// Runs the whole evaluation.
+pub fn evaluate_amodal(
+    c: &Completer,
+    data: &PairData,
+    opts: &AmodalEvalOptions,
+) -> candle_core::Result<AmodalReport> {
+    let n = opts.pairs.min(data.len());
+    let idx: Vec<usize> = (0..n).collect();
+    let r = data.resolution();
+    let truth: Vec<Vec<bool>> = idx.iter().map(|&i| mask_of(data.amodal_mask(i))).collect();
+    let visible: Vec<Vec<bool>> = idx.iter().map(|&i| mask_of(data.visible_mask(i))).collect();
+    let iou_visible: Vec<f64> = (0..n).map(|k| iou(&visible[k], &truth[k])).collect();
+    let iou_hull: Vec<f64> = (0..n)
+        .map(|k| iou(&convex_hull_mask(&visible[k], r), &truth[k]))
+        .collect();
+
+    let mut miou_by_steps = BTreeMap::new();
+    let mut main: Option<(Vec<f64>, Vec<Completion>)> = None;
+    for &s in &opts.steps {
+        let comp = complete_all(c, data, &idx, s, 0.0, opts)?;
+        let ious: Vec<f64> = (0..n).map(|k| iou(&comp[k].amodal, &truth[k])).collect();
+        miou_by_steps.insert(s, mean(ious.iter().copied()));
+        if s == opts.main_steps {
+            main = Some((ious, comp));
+        }
+    }
+    let (main_iou, main_comp) = match main {
+        Some(m) => m,
+        None => {
+            let comp = complete_all(c, data, &idx, opts.main_steps, 0.0, opts)?;
+            (
+                (0..n).map(|k| iou(&comp[k].amodal, &truth[k])).collect(),
+                comp,
+            )
+        }
+    };
+    let group = |keep: &dyn Fn(usize) -> bool| -> GroupFigures {
+        let ks: Vec<usize> = (0..n).filter(|&k| keep(idx[k])).collect();
+        GroupFigures {
+            pairs: ks.len(),
+            miou_model: mean(ks.iter().map(|&k| main_iou[k])),
+            miou_visible: mean(ks.iter().map(|&k| iou_visible[k])),
+            miou_convex_hull: mean(ks.iter().map(|&k| iou_hull[k])),
+        }
+    };
+    let occ = &data.set.occlusion;
+    let light = group(&|i| occ[i] >= 0.1 && occ[i] <= 0.4);
+    let heavy = group(&|i| occ[i] > 0.4);
+    let held_out_shapes = group(&|i| data.set.held_out[i] > 0);
+
+    // Cross-view: the pairs that have other views of their object.
+    let multi: Vec<usize> = idx
+        .iter()
+        .copied()
+        .filter(|&i| !data.other_views(i).is_empty())
+        .collect();
+    let with_rho = complete_all(c, data, &multi, opts.main_steps, opts.rho, opts)?;
+    let pos: BTreeMap<usize, usize> = idx.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    let miou_rho = mean(
+        multi
+            .iter()
+            .zip(&with_rho)
+            .map(|(&i, comp)| iou(&comp.amodal, &truth[pos[&i]])),
+    );
+    let miou_rho_0 = mean(multi.iter().map(|&i| main_iou[pos[&i]]));
+    let cross_view = CrossViewFigures {
+        pairs: multi.len(),
+        miou_rho_0,
+        miou_rho,
+        rho: opts.rho,
+        gain: miou_rho - miou_rho_0,
+    };
+
+    // Depth on the hidden part after the Huber fit on the visible part.
+    let (mut model_err, mut base_err, mut used) = (Vec::new(), Vec::new(), 0usize);
+    for (k, &i) in idx.iter().enumerate() {
+        let (vis, amo) = (&visible[k], &truth[k]);
+        let hidden: Vec<usize> = (0..r * r).filter(|&p| amo[p] && !vis[p]).collect();
+        let shown: Vec<usize> = (0..r * r).filter(|&p| vis[p]).collect();
+        if hidden.len() < 5 || shown.len() < 5 {
+            continue;
+        }
+        let pred = &main_comp[k].depth_rel;
+        let gt = data.whole_depth(i);
+        let obs = data.visible_depth(i);
+        let x: Vec<f32> = shown.iter().map(|&p| pred[p]).collect();
+        let y: Vec<f32> = shown.iter().map(|&p| obs[p]).collect();
+        let Ok(fit) = huber_affine_fit(&x, &y, &HuberOptions::default()) else {
+            continue;
+        };
+        let mut sorted = y.clone();
+        sorted.sort_by(f32::total_cmp);
+        let med = sorted[sorted.len() / 2] as f64;
+        model_err.push(mean(
+            hidden
+                .iter()
+                .map(|&p| (fit.apply(pred[p] as f64) - gt[p] as f64).abs()),
+        ));
+        base_err.push(mean(hidden.iter().map(|&p| (med - gt[p] as f64).abs())));
+        used += 1;
+    }
+    let depth = DepthFigures {
+        pairs: used,
+        mae_hidden_model: mean(model_err.into_iter()),
+        mae_hidden_median_baseline: mean(base_err.into_iter()),
+    };
+
+    // Speed at the main step count: one crop, then a batch of 8.
+    let dev = c.device.clone();
+    let (_, one) = data.batch(&[0], &[false], &dev)?;
+    let eight_idx: Vec<usize> = (0..8).map(|k| k % data.len()).collect();
+    let (_, eight) = data.batch(&eight_idx, &[false; 8], &dev)?;
+    let time = |cond: &Tensor, reps: usize| -> candle_core::Result<f64> {
+        c.complete(cond, &[], 0.0, opts.main_steps, 0)
+            .map_err(|e| candle_core::Error::msg(e.to_string()))?; // warm-up
+        let t0 = Instant::now();
+        for _ in 0..reps {
+            c.complete(cond, &[], 0.0, opts.main_steps, 0)
+                .map_err(|e| candle_core::Error::msg(e.to_string()))?;
+        }
+        Ok(t0.elapsed().as_secs_f64() / reps as f64)
+    };
+    let t1 = time(&one, 5)?;
+    let t8 = time(&eight, 3)?;
+    let speed = SpeedFigures {
+        steps: opts.main_steps,
+        completions_per_second_batch_1: 1.0 / t1,
+        completions_per_second_batch_8: 8.0 / t8,
+        threads: rayon::current_num_threads(),
+    };
+
+    Ok(AmodalReport {
+        pairs: n,
+        resolution: r,
+        miou_by_steps,
+        miou_baseline_visible: mean(iou_visible.iter().copied()),
+        miou_baseline_convex_hull: mean(iou_hull.iter().copied()),
+        main_steps: opts.main_steps,
+        light,
+        heavy,
+        held_out_shapes,
+        cross_view,
+        depth,
+        speed,
+    })
+}
