@@ -1,7 +1,7 @@
 //! Amodal training pairs for GL-DoT, rendered straight at crop resolution.
 //!
-//! For an object in a view: a square crop around its amodal box (the box of its projected
-//! vertices, grown by a margin), holding
+//! For an object in a view: a square crop around its visible box (grown by a random factor in
+//! [1.4, 2.2) and jittered: the pipeline only knows the visible box), holding
 //! - `crop_rgb`: the scene as seen in the crop (occluders included),
 //! - `visible_mask`: where the object is visible,
 //! - `visible_depth`: observed depth on the visible mask, relative (below),
@@ -36,8 +36,9 @@ pub struct PairConfig {
     pub views_per_scene: usize,
     /// Minimum side of the amodal box in the full image, pixels.
     pub min_box_px: f32,
-    /// Crop side = box side * (1 + margin).
-    pub margin: f32,
+    /// Crop side = visible box side * a factor drawn from [crop_scale_min, crop_scale_max).
+    pub crop_scale_min: f32,
+    pub crop_scale_max: f32,
     /// Pairs whose visible part is below this fraction of the amodal area are skipped.
     pub min_visible_fraction: f32,
     /// Fraction of unoccluded object views kept (they teach "nothing to add" but are plentiful).
@@ -50,7 +51,8 @@ impl Default for PairConfig {
             resolution: 64,
             views_per_scene: 6,
             min_box_px: 24.0,
-            margin: 0.2,
+            crop_scale_min: 1.4,
+            crop_scale_max: 2.2,
             min_visible_fraction: 0.08,
             keep_unoccluded: 0.3,
         }
@@ -147,6 +149,21 @@ fn projected_box(camera: &Camera, scene: &Scene, object: usize) -> Option<(f32, 
     Some(b)
 }
 
+/// Box (u0, v0, u1, v1) of an instance's visible pixels, pixel edges included.
+fn visible_box(frame: &Frame, id: u16) -> Option<(f32, f32, f32, f32)> {
+    let w = frame.width as usize;
+    let mut b = (usize::MAX, usize::MAX, 0usize, 0usize);
+    let mut any = false;
+    for (i, &inst) in frame.instance.iter().enumerate() {
+        if inst == id {
+            let (u, v) = (i % w, i / w);
+            b = (b.0.min(u), b.1.min(v), b.2.max(u + 1), b.3.max(v + 1));
+            any = true;
+        }
+    }
+    any.then_some((b.0 as f32, b.1 as f32, b.2 as f32, b.3 as f32))
+}
+
 fn median(mut v: Vec<f32>) -> f32 {
     let mid = v.len() / 2;
     v.select_nth_unstable_by(mid, f32::total_cmp);
@@ -164,6 +181,7 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
     };
     let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(scene.seed ^ 0x7061_6972);
     for camera in &scene.cameras {
+        let full_view = crate::render::render_scene(camera, scene, &tris);
         let (w, h) = (
             camera.intrinsics.width() as f32,
             camera.intrinsics.height() as f32,
@@ -179,8 +197,16 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             if side < config.min_box_px || u0 < 0.0 || v0 < 0.0 || u1 >= w || v1 >= h {
                 continue;
             }
-            let crop_side = side * (1.0 + config.margin);
-            let (cx, cy) = ((u0 + u1) / 2.0, (v0 + v1) / 2.0);
+            // The crop is placed around the VISIBLE box, as the pipeline must do (it does not know
+            // the amodal box), with a random scale and jitter so the model sees the range of
+            // framings the pipeline produces.
+            let Some((vu0, vv0, vu1, vv1)) = visible_box(&full_view, obj.instance_id) else {
+                continue;
+            };
+            let vis_side = (vu1 - vu0).max(vv1 - vv0);
+            let crop_side = (vis_side * r.random_range(config.crop_scale_min..config.crop_scale_max)).max(config.min_box_px);
+            let mut jitter = || (r.random::<f32>() - 0.5) * 0.2 * crop_side;
+            let (cx, cy) = ((vu0 + vu1) / 2.0 + jitter(), (vv0 + vv1) / 2.0 + jitter());
             let crop = crop_camera(
                 camera,
                 cx - crop_side / 2.0,
