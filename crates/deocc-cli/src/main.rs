@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 mod bench;
 mod eval;
 mod progress;
+mod run;
 mod synth;
 mod train;
 
@@ -27,6 +28,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Complete the occluded objects of a scene and fuse them into its point cloud.
+    Run(run::RunArgs),
     /// Make synthetic scenes, training pairs and contact sheets.
     #[command(subcommand)]
     Synth(synth::SynthCommand),
@@ -50,6 +53,7 @@ fn main() -> ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Run(a) => run::run(a),
         Command::Synth(c) => synth::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Train(a) => train::run(a),

@@ -7,3 +7,4 @@
 
 pub mod amodal;
 pub mod masks;
+pub mod reconstruction;

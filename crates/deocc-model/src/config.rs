@@ -17,7 +17,8 @@ pub struct GlDotConfig {
     pub resolution: usize,
     /// Patch side of the denoiser's tokens.
     pub patch: usize,
-    /// Channels of the target: RGB (3), amodal mask (1), relative depth (1).
+    /// Channels of the target: RGB (3), amodal mask (1), relative depth of the near side (1) and
+    /// of the far side (1).
     pub target_channels: usize,
     /// Channels of the conditioning image: crop RGB (3), visible mask (1), visible depth (1).
     pub cond_channels: usize,
@@ -38,7 +39,7 @@ impl GlDotConfig {
         Self {
             resolution: 16,
             patch: 4,
-            target_channels: 5,
+            target_channels: 6,
             cond_channels: 5,
             width: 32,
             depth: 2,
@@ -55,7 +56,7 @@ impl GlDotConfig {
         Self {
             resolution: 64,
             patch: 4,
-            target_channels: 5,
+            target_channels: 6,
             cond_channels: 5,
             width: 128,
             depth: 6,
@@ -73,7 +74,7 @@ impl GlDotConfig {
         Self {
             resolution: 128,
             patch: 2,
-            target_channels: 5,
+            target_channels: 6,
             cond_channels: 5,
             width: 1152,
             depth: 28,

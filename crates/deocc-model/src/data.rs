@@ -1,7 +1,8 @@
 //! Batches for GL-DoT from the synthetic training pairs.
 //!
 //! Target channels (in [-1, 1] roughly): RGB `v / 127.5 - 1`, amodal mask `2 m - 1`, relative
-//! depth times [`DEPTH_SCALE`]. Conditioning channels: crop RGB, visible mask, visible relative
+//! depth of the object's near side and of its far side (its back, which no view shows), times
+//! [`DEPTH_SCALE`]. Conditioning channels: crop RGB, visible mask, visible relative
 //! depth, scaled the same way.
 
 use std::collections::HashMap;
@@ -13,7 +14,7 @@ use rand::Rng;
 
 /// Relative depth is (d - median visible) / crop width: about +-0.5; doubled to fill [-1, 1].
 pub const DEPTH_SCALE: f32 = 2.0;
-pub const TARGET_CHANNELS: usize = 5;
+pub const TARGET_CHANNELS: usize = 6;
 pub const COND_CHANNELS: usize = 5;
 
 /// Pairs plus an index of which pairs show the same object.
@@ -87,6 +88,7 @@ impl PairData {
                 }
                 target[o * TARGET_CHANNELS + 3] = 2.0 * s.amodal_mask[p] as f32 - 1.0;
                 target[o * TARGET_CHANNELS + 4] = s.whole_depth[p] * DEPTH_SCALE;
+                target[o * TARGET_CHANNELS + 5] = s.whole_back_depth[p] * DEPTH_SCALE;
                 cond[o * COND_CHANNELS + 3] = 2.0 * s.visible_mask[p] as f32 - 1.0;
                 cond[o * COND_CHANNELS + 4] = s.visible_depth[p] * DEPTH_SCALE;
             }
@@ -131,6 +133,10 @@ impl PairData {
     pub fn whole_depth(&self, i: usize) -> &[f32] {
         let n = self.set.pixels();
         &self.set.whole_depth[i * n..(i + 1) * n]
+    }
+    pub fn whole_back_depth(&self, i: usize) -> &[f32] {
+        let n = self.set.pixels();
+        &self.set.whole_back_depth[i * n..(i + 1) * n]
     }
     pub fn visible_depth(&self, i: usize) -> &[f32] {
         let n = self.set.pixels();

@@ -28,8 +28,10 @@ pub struct Completion {
     pub rgb: Vec<u8>,
     /// (R*R) amodal mask: the mask channel above 0.
     pub amodal: Vec<bool>,
-    /// (R*R) relative depth (the training pairs' units), meaningful inside `amodal`.
+    /// (R*R) relative depth of the near side (the training pairs' units), meaningful inside `amodal`.
     pub depth_rel: Vec<f32>,
+    /// (R*R) relative depth of the far side (the object's back).
+    pub back_depth_rel: Vec<f32>,
 }
 
 impl Completer {
@@ -148,6 +150,10 @@ impl Completer {
                     depth_rel: px
                         .chunks_exact(TARGET_CHANNELS)
                         .map(|p| p[4] / DEPTH_SCALE)
+                        .collect(),
+                    back_depth_rel: px
+                        .chunks_exact(TARGET_CHANNELS)
+                        .map(|p| p[5] / DEPTH_SCALE)
                         .collect(),
                 }
             })

@@ -337,12 +337,12 @@ fn softmax_attention_switch_builds_and_runs() {
     cfg.attention = AttentionKind::Softmax;
     let (m, _) = model(&cfg, 9);
     let mut g = rng(10);
-    let x = randn((1, 16, 16, 5), &mut g, &Device::Cpu).unwrap();
+    let x = randn((1, 16, 16, cfg.target_channels), &mut g, &Device::Cpu).unwrap();
     let c = randn((1, 16, 16, 5), &mut g, &Device::Cpu).unwrap();
     let tok = m.encode(&c).unwrap();
     let v = m
         .forward(&x, &Tensor::new(&[0.5f32], &Device::Cpu).unwrap(), &c, &tok)
         .unwrap();
-    assert_eq!(v.dims(), &[1, 16, 16, 5]);
+    assert_eq!(v.dims(), &[1, 16, 16, cfg.target_channels]);
     assert!(v.mean(D::Minus1).is_ok());
 }

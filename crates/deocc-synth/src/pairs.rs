@@ -7,7 +7,8 @@
 //! - `visible_depth`: observed depth on the visible mask, relative (below),
 //! - `whole_rgb`: the object alone on a white background,
 //! - `amodal_mask`: the whole object's silhouette,
-//! - `whole_depth`: the whole object's depth, relative.
+//! - `whole_depth`: the whole object's depth, relative;
+//! - `whole_back_depth`: the depth of its far side (the surface no view shows), relative.
 //!
 //! Relative depth is `(d - m) / s` with `m` the median visible depth of the object and `s` the
 //! crop's width in metres at depth `m`: dimensionless, predictable from the crop alone, and put
@@ -69,6 +70,8 @@ pub struct PairSet {
     pub whole_rgb: Vec<u8>,      // (N, R, R, 3)
     pub amodal_mask: Vec<u8>,    // (N, R, R) 0/1
     pub whole_depth: Vec<f32>,   // (N, R, R)
+    /// Depth of the object's far side (its back surface) per pixel: what no view of it shows.
+    pub whole_back_depth: Vec<f32>, // (N, R, R)
     pub group: Vec<u32>,         // object identity across views
     pub category: Vec<u8>,       // Category as u8 (declaration order)
     pub held_out: Vec<u8>,
@@ -95,6 +98,7 @@ impl PairSet {
         self.amodal_mask.truncate(n * px);
         self.visible_depth.truncate(n * px);
         self.whole_depth.truncate(n * px);
+        self.whole_back_depth.truncate(n * px);
         self.group.truncate(n);
         self.category.truncate(n);
         self.held_out.truncate(n);
@@ -109,6 +113,7 @@ impl PairSet {
         self.whole_rgb.extend_from_slice(&o.whole_rgb);
         self.amodal_mask.extend_from_slice(&o.amodal_mask);
         self.whole_depth.extend_from_slice(&o.whole_depth);
+        self.whole_back_depth.extend_from_slice(&o.whole_back_depth);
         self.group.extend_from_slice(&o.group);
         self.category.extend_from_slice(&o.category);
         self.held_out.extend_from_slice(&o.held_out);
@@ -204,7 +209,9 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
                 continue;
             };
             let vis_side = (vu1 - vu0).max(vv1 - vv0);
-            let crop_side = (vis_side * r.random_range(config.crop_scale_min..config.crop_scale_max)).max(config.min_box_px);
+            let crop_side = (vis_side
+                * r.random_range(config.crop_scale_min..config.crop_scale_max))
+            .max(config.min_box_px);
             let mut jitter = || (r.random::<f32>() - 0.5) * 0.2 * crop_side;
             let (cx, cy) = ((vu0 + vu1) / 2.0 + jitter(), (vv0 + vv1) / 2.0 + jitter());
             let crop = crop_camera(
@@ -224,6 +231,15 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
                 tris.object_ranges[k].clone(),
                 &|_| obj.instance_id,
                 &mut alone,
+            );
+            let mut back = Frame::new(res, res);
+            back.farthest = true;
+            rasterize(
+                &crop,
+                &tris,
+                tris.object_ranges[k].clone(),
+                &|_| obj.instance_id,
+                &mut back,
             );
             let visible: Vec<bool> = full
                 .instance
@@ -268,6 +284,13 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             out.whole_depth.extend((0..n).map(|i| {
                 if amodal[i] {
                     (alone.depth_m[i] - m) / s
+                } else {
+                    0.0
+                }
+            }));
+            out.whole_back_depth.extend((0..n).map(|i| {
+                if amodal[i] {
+                    (back.depth_m[i] - m) / s
                 } else {
                     0.0
                 }
@@ -365,6 +388,12 @@ pub fn save_pairs(path: &Path, set: &PairSet) -> Result<()> {
             vec![n, r, r],
             bytes_of_f32(&set.whole_depth),
         ),
+        (
+            "whole_back_depth",
+            Dtype::F32,
+            vec![n, r, r],
+            bytes_of_f32(&set.whole_back_depth),
+        ),
         ("group", Dtype::U32, vec![n], bytes_of_u32(&set.group)),
         ("category", Dtype::U8, vec![n], set.category.clone()),
         ("held_out", Dtype::U8, vec![n], set.held_out.clone()),
@@ -436,6 +465,7 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
         whole_rgb: get("whole_rgb", Dtype::U8)?.1.to_vec(),
         amodal_mask: get("amodal_mask", Dtype::U8)?.1.to_vec(),
         whole_depth: f32s(get("whole_depth", Dtype::F32)?.1),
+        whole_back_depth: f32s(get("whole_back_depth", Dtype::F32)?.1),
         group: get("group", Dtype::U32)?
             .1
             .chunks_exact(4)
@@ -451,6 +481,7 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
         && set.whole_rgb.len() == n * px * 3
         && set.visible_depth.len() == n * px
         && set.whole_depth.len() == n * px
+        && set.whole_back_depth.len() == n * px
         && set.group.len() == n
         && set.category.len() == n
         && set.held_out.len() == n

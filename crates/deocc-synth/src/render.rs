@@ -19,6 +19,8 @@ pub struct Frame {
     pub depth_m: Vec<f32>,
     pub instance: Vec<u16>,
     pub triangle: Vec<u32>,
+    /// Keep the farthest surface instead of the nearest (the back of an object rendered alone).
+    pub farthest: bool,
 }
 
 impl Frame {
@@ -30,6 +32,7 @@ impl Frame {
             depth_m: vec![0.0; n],
             instance: vec![0; n],
             triangle: vec![u32::MAX; n],
+            farthest: false,
         }
     }
 }
@@ -166,7 +169,7 @@ fn raster_triangle(
             let z = 1.0 / inv_z;
             let idx = row + u as usize;
             let cur = frame.depth_m[idx];
-            if cur == 0.0 || z < cur {
+            if cur == 0.0 || (z < cur) != frame.farthest {
                 frame.depth_m[idx] = z;
                 frame.instance[idx] = inst;
                 frame.triangle[idx] = tri;
