@@ -288,7 +288,7 @@ fn tiny_model_overfits_a_few_pairs() {
     let mut first = data.set.clone();
     first.truncate(4);
     let small = PairData::new(first);
-    for _ in 0..300 {
+    for _ in 0..500 {
         trainer.step(&small).unwrap();
     }
     let after = eval(&trainer);
