@@ -35,6 +35,8 @@ enum Command {
     Synth(synth::SynthCommand),
     /// Train GL-DoT (starts or resumes a run directory).
     Train(train::TrainArgs),
+    /// Export a training run's EMA weights (f16) for shipping.
+    Export(train::ExportArgs),
     /// Evaluate on held-out data and write a report.
     #[command(subcommand)]
     Eval(eval::EvalCommand),
@@ -58,6 +60,7 @@ fn main() -> ExitCode {
         Command::Bench(c) => bench::run(c),
         Command::Train(a) => train::run(a),
         Command::Eval(c) => eval::run(c),
+        Command::Export(a) => train::export(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

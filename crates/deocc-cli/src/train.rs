@@ -113,3 +113,37 @@ pub fn run(a: TrainArgs) -> Result<()> {
     );
     Ok(())
 }
+
+#[derive(Args)]
+pub struct ExportArgs {
+    /// Training run directory.
+    #[arg(long)]
+    run: PathBuf,
+    /// Output folder: train.json + ema.safetensors (f16), loadable by `deocc run --weights`.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Ships a run's EMA weights in half precision (half the size, same completions to within f16
+/// rounding) with the run's config.
+pub fn export(a: ExportArgs) -> Result<()> {
+    let ema = a.run.join("ema.safetensors");
+    let cfg = a.run.join("train.json");
+    let state = a.run.join("state.json");
+    for f in [&ema, &cfg, &state] {
+        if !f.exists() {
+            bail!("{}: missing; is {} a training run with a checkpoint?", f.display(), a.run.display());
+        }
+    }
+    let tensors = candle_core::safetensors::load(&ema, &candle_core::Device::Cpu).with_context(|| format!("{}: cannot read", ema.display()))?;
+    let half: std::collections::HashMap<String, candle_core::Tensor> =
+        tensors.into_iter().map(|(k, v)| Ok((k, v.to_dtype(candle_core::DType::F16)?))).collect::<candle_core::Result<_>>()?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("{}: cannot create", a.out.display()))?;
+    let tmp = a.out.join("ema.safetensors.tmp");
+    candle_core::safetensors::save(&half, &tmp).with_context(|| format!("{}: cannot write", tmp.display()))?;
+    std::fs::rename(&tmp, a.out.join("ema.safetensors"))?;
+    std::fs::copy(&cfg, a.out.join("train.json")).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    std::fs::copy(&state, a.out.join("state.json")).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    println!("exported {} -> {}", a.run.display(), a.out.display());
+    Ok(())
+}
