@@ -132,18 +132,29 @@ pub fn export(a: ExportArgs) -> Result<()> {
     let state = a.run.join("state.json");
     for f in [&ema, &cfg, &state] {
         if !f.exists() {
-            bail!("{}: missing; is {} a training run with a checkpoint?", f.display(), a.run.display());
+            bail!(
+                "{}: missing; is {} a training run with a checkpoint?",
+                f.display(),
+                a.run.display()
+            );
         }
     }
-    let tensors = candle_core::safetensors::load(&ema, &candle_core::Device::Cpu).with_context(|| format!("{}: cannot read", ema.display()))?;
-    let half: std::collections::HashMap<String, candle_core::Tensor> =
-        tensors.into_iter().map(|(k, v)| Ok((k, v.to_dtype(candle_core::DType::F16)?))).collect::<candle_core::Result<_>>()?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("{}: cannot create", a.out.display()))?;
+    let tensors = candle_core::safetensors::load(&ema, &candle_core::Device::Cpu)
+        .with_context(|| format!("{}: cannot read", ema.display()))?;
+    let half: std::collections::HashMap<String, candle_core::Tensor> = tensors
+        .into_iter()
+        .map(|(k, v)| Ok((k, v.to_dtype(candle_core::DType::F16)?)))
+        .collect::<candle_core::Result<_>>()?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("{}: cannot create", a.out.display()))?;
     let tmp = a.out.join("ema.safetensors.tmp");
-    candle_core::safetensors::save(&half, &tmp).with_context(|| format!("{}: cannot write", tmp.display()))?;
+    candle_core::safetensors::save(&half, &tmp)
+        .with_context(|| format!("{}: cannot write", tmp.display()))?;
     std::fs::rename(&tmp, a.out.join("ema.safetensors"))?;
-    std::fs::copy(&cfg, a.out.join("train.json")).with_context(|| format!("{}: cannot write", a.out.display()))?;
-    std::fs::copy(&state, a.out.join("state.json")).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    std::fs::copy(&cfg, a.out.join("train.json"))
+        .with_context(|| format!("{}: cannot write", a.out.display()))?;
+    std::fs::copy(&state, a.out.join("state.json"))
+        .with_context(|| format!("{}: cannot write", a.out.display()))?;
     println!("exported {} -> {}", a.run.display(), a.out.display());
     Ok(())
 }

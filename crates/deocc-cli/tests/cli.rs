@@ -93,3 +93,122 @@ fn bad_inputs_fail_with_the_file_named() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("PATH=SIZE_M"));
 }
+
+/// The shipped model, relative to the workspace.
+fn shipped_weights() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../weights/gldot-small")
+}
+
+#[test]
+fn run_makes_a_scene_more_complete_and_writes_every_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    let o = deocc()
+        .args([
+            "synth",
+            "scenes",
+            "--count",
+            "1",
+            "--seed",
+            "9000000",
+            "--views",
+            "4",
+            "--width",
+            "320",
+            "--height",
+            "240",
+            "--gt-density",
+            "4000",
+            "--out",
+        ])
+        .arg(&scenes)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = dir.path().join("result");
+    let o = deocc()
+        .arg("run")
+        .arg(scenes.join("scene_000000"))
+        .arg("--out")
+        .arg(&out)
+        .arg("--weights")
+        .arg(shipped_weights())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in [
+        "completed.ply",
+        "observed.ply",
+        "report.json",
+        "render_input_view.png",
+        "render_novel_view.png",
+    ] {
+        assert!(out.join(f).exists(), "missing {f}");
+    }
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let e = &report["evaluation"];
+    let before = e["visible_only"]["hidden_region"]["completeness_mean"]
+        .as_f64()
+        .unwrap();
+    let after = e["with_deocclusion"]["hidden_region"]["completeness_mean"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        after < before,
+        "hidden-region completeness {before} -> {after}"
+    );
+    let completed = deocc_io::ply::read_ply(&out.join("completed.ply"))
+        .unwrap()
+        .vertices;
+    assert!(completed.generated.unwrap().iter().any(|&g| g == 1));
+    // No staging folder is left behind.
+    let leftovers: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains("partial"))
+        .collect();
+    assert!(leftovers.is_empty());
+}
+
+#[test]
+fn run_rejects_bad_input_without_leaving_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    std::fs::create_dir_all(scene.join("rgb")).unwrap();
+    std::fs::write(scene.join("cameras.json"), r#"{"frames":[{"name":"a","intrinsics":{"fx":500,"fy":500,"cx":32,"cy":24,"width":64,"height":48},"world_from_camera":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}"#).unwrap();
+    let out = dir.path().join("out");
+    let o = deocc()
+        .arg("run")
+        .arg(&scene)
+        .arg("--out")
+        .arg(&out)
+        .arg("--weights")
+        .arg(shipped_weights())
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("a.png"), "{err}");
+    assert!(!out.exists());
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        1,
+        "only the input folder remains"
+    );
+    // An output folder that holds something else is not overwritten.
+    let busy = dir.path().join("busy");
+    std::fs::create_dir_all(&busy).unwrap();
+    std::fs::write(busy.join("thesis.tex"), "precious").unwrap();
+    let o = deocc()
+        .arg("run")
+        .arg("--example")
+        .arg("--out")
+        .arg(&busy)
+        .arg("--weights")
+        .arg(shipped_weights())
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(busy.join("thesis.tex").exists());
+}

@@ -65,3 +65,51 @@ pub fn figures(
         )?,
     })
 }
+
+/// ICP refinement of a prediction onto the ground truth, as the protocol does after its similarity
+/// alignment (point-to-point, 0.1 m, at most 30 iterations). Our predictions are already in the
+/// ground-truth frame (known poses), so the Umeyama step is the identity.
+pub fn align_to_ground_truth(
+    prediction: &PointCloud,
+    gt: &EvalGroundTruth,
+) -> Result<PointCloud, GeometryError> {
+    use deocc_geometry::align::{icp, IcpOptions, IcpTarget};
+    let target = IcpTarget::new(&gt.cloud.positions, None)?;
+    let r = icp(
+        &prediction.positions,
+        &target,
+        &nalgebra::Isometry3::identity(),
+        &IcpOptions::default(),
+    )?;
+    let mut out = prediction.clone();
+    out.transform(&r.target_from_source.cast::<f32>());
+    Ok(out)
+}
+
+/// One row of the results table: a method's figures averaged over scenes.
+#[derive(Debug, Clone, Serialize)]
+pub struct TableRow {
+    pub method: String,
+    pub scenes: usize,
+    pub accuracy_mean: f64,
+    pub completeness_mean: f64,
+    pub chamfer: f64,
+    pub fscore: f64,
+    pub completeness_hidden_mean: f64,
+    pub recall_hidden: f64,
+}
+
+pub fn average_row(method: &str, figs: &[MethodFigures]) -> TableRow {
+    let n = figs.len().max(1) as f64;
+    let avg = |f: &dyn Fn(&MethodFigures) -> f64| figs.iter().map(f).sum::<f64>() / n;
+    TableRow {
+        method: method.into(),
+        scenes: figs.len(),
+        accuracy_mean: avg(&|m| m.whole_scene.accuracy_mean),
+        completeness_mean: avg(&|m| m.whole_scene.completeness_mean),
+        chamfer: avg(&|m| m.whole_scene.chamfer),
+        fscore: avg(&|m| m.whole_scene.fscore),
+        completeness_hidden_mean: avg(&|m| m.hidden_region.completeness_mean),
+        recall_hidden: avg(&|m| m.hidden_region.recall),
+    }
+}

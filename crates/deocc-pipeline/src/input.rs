@@ -125,3 +125,54 @@ pub fn read_scene(dir: &Path) -> Result<SceneInput, PipelineError> {
         structure_ids,
     })
 }
+
+impl SceneInput {
+    /// A rendered benchmark scene as pipeline input, without a round trip through files (depth is
+    /// quantised to millimetres as the PNG files would store it, so results match `deocc run`).
+    pub fn from_rendered(rendered: &deocc_synth::dataset::RenderedScene) -> Self {
+        let frames = rendered
+            .views
+            .iter()
+            .enumerate()
+            .map(|(v, view)| {
+                let mm: Vec<f32> = view
+                    .depth
+                    .data()
+                    .iter()
+                    .map(|&d| {
+                        let q = (d * 1000.0).round();
+                        if q > 0.0 && q <= 65535.0 {
+                            q / 1000.0
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
+                let (w, h) = (view.frame.width, view.frame.height);
+                Frame {
+                    name: format!("{v:06}"),
+                    camera: view.camera,
+                    rgb: view.rgb.clone(),
+                    depth: DepthMap::new(w, h, mm).unwrap_or_else(|_| DepthMap::zeros(w, h)),
+                    instances: Some(InstanceMap {
+                        width: w,
+                        height: h,
+                        ids: view.frame.instance.clone(),
+                    }),
+                }
+            })
+            .collect();
+        let structure_ids = rendered
+            .scene
+            .objects
+            .iter()
+            .filter(|o| o.category.is_structure())
+            .map(|o| o.instance_id)
+            .collect();
+        Self {
+            dir: PathBuf::from(format!("<scene seed {}>", rendered.scene.seed)),
+            frames,
+            structure_ids,
+        }
+    }
+}

@@ -6,6 +6,8 @@
 //! 4. match: instance ids are consistent across views in the supported inputs (benchmark scenes,
 //!    user instance maps), so matching is the identity here; centroid matching for
 //!    view-inconsistent segmenters is a separate stage;
+//!    Every object's far side is hidden in every view, so by default unoccluded objects are
+//!    completed too (their far side only); `complete_unoccluded: false` restricts to occluded ones.
 //! 5. select views: the largest visible mask first, then one more every `view_delta_deg` of viewing
 //!    direction;
 //! 6. complete each occluded instance in its selected views with GL-DoT, conditioning on its other
@@ -70,6 +72,11 @@ pub struct PipelineOptions {
     pub fusion_voxel_m: f64,
     pub batch: usize,
     pub seed: u64,
+    /// Also complete objects no other object hides: their far side is hidden in every view, and
+    /// GL-DoT's far-side channel fills it.
+    pub complete_unoccluded: bool,
+    /// Masks smaller than this (pixels) are not completed.
+    pub min_visible_px: usize,
 }
 
 impl Default for PipelineOptions {
@@ -83,6 +90,8 @@ impl Default for PipelineOptions {
             fusion_voxel_m: 0.01,
             batch: 8,
             seed: 0,
+            complete_unoccluded: true,
+            min_visible_px: 200,
         }
     }
 }
@@ -285,7 +294,10 @@ pub fn run(
         .iter()
         .map(|(&id, views)| InstanceReport {
             instance_id: id,
-            occluded_in_views: occluded[&id].iter().map(|c| c.0).collect(),
+            occluded_in_views: occluded
+                .get(&id)
+                .map(|c| c.iter().map(|c| c.0).collect())
+                .unwrap_or_default(),
             selected_views: views.clone(),
             generated_points: gen_flags
                 .iter()
