@@ -2,12 +2,13 @@
 //!
 //! The de-occlusion pipeline of DESIGN.md, as plain functions over plain data:
 //! 1. reconstruct: back-project every frame's depth into one observed cloud (colour, instance);
-//! 2-3. occlusion: per view, adjacent instance masks, the farther one is occluded ([`occlusion`]);
+//! 2. segment: instance maps given with the input (benchmark or user masks);
+//! 3. occlusion: per view, adjacent instance masks, the farther one is occluded ([`occlusion`]);
+//!    every object's far side is hidden in every view, so by default unoccluded objects are
+//!    completed too (their far side only); `complete_unoccluded: false` restricts to occluded ones;
 //! 4. match: instance ids are consistent across views in the supported inputs (benchmark scenes,
 //!    user instance maps), so matching is the identity here; centroid matching for
 //!    view-inconsistent segmenters is a separate stage;
-//!    Every object's far side is hidden in every view, so by default unoccluded objects are
-//!    completed too (their far side only); `complete_unoccluded: false` restricts to occluded ones.
 //! 5. select views: the largest visible mask first, then one more every `view_delta_deg` of viewing
 //!    direction;
 //! 6. complete each occluded instance in its selected views with GL-DoT, conditioning on its other
