@@ -76,7 +76,10 @@ fn median_time<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f
 
 /// Surface points of a benchmark scene (so normals and ICP see real structure), `n` of them, and a
 /// half-size subset moved by 1 degree / 1 cm with 1 mm noise.
-fn bench_clouds(n: usize) -> Result<(Vec<Point3<f32>>, Vec<Point3<f32>>)> {
+/// Target and source clouds of the benchmark.
+type CloudPair = (Vec<Point3<f32>>, Vec<Point3<f32>>);
+
+fn bench_clouds(n: usize) -> Result<CloudPair> {
     use deocc_synth::render::SceneTriangles;
     let scene =
         deocc_synth::scene::generate_scene(&deocc_synth::scene::SceneConfig::default(), 9_000_000)?;
