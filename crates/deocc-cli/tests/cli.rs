@@ -161,7 +161,7 @@ fn run_makes_a_scene_more_complete_and_writes_every_output() {
     let completed = deocc_io::ply::read_ply(&out.join("completed.ply"))
         .unwrap()
         .vertices;
-    assert!(completed.generated.unwrap().iter().any(|&g| g == 1));
+    assert!(completed.generated.unwrap().contains(&1));
     // No staging folder is left behind.
     let leftovers: Vec<_> = std::fs::read_dir(dir.path())
         .unwrap()
