@@ -135,12 +135,14 @@ impl AdamW {
                 .m
                 .get_mut(name)
                 .ok_or_else(|| candle_core::Error::msg(format!("no moment for {name}")))?;
-            *m = ((&*m * b1)? + (g * (1.0 - b1))?)?;
+            // detach(): optimizer state must not record an op graph, or every step would keep the
+            // previous step's tensors alive (a leak of one model copy per step).
+            *m = ((&*m * b1)? + (g * (1.0 - b1))?)?.detach();
             let v = self
                 .v
                 .get_mut(name)
                 .ok_or_else(|| candle_core::Error::msg(format!("no moment for {name}")))?;
-            *v = ((&*v * b2)? + (g.sqr()? * (1.0 - b2))?)?;
+            *v = ((&*v * b2)? + (g.sqr()? * (1.0 - b2))?)?.detach();
             let update = ((&*m / c1)? / ((&*v / c2)?.sqrt()? + self.eps)?)?;
             // Decoupled weight decay on matrices only (not biases, norms or tables).
             let decay = if var.rank() >= 2 && !name.contains("table") {
@@ -148,7 +150,7 @@ impl AdamW {
             } else {
                 0.0
             };
-            let new = ((var.as_tensor() * (1.0 - lr * decay))? - (update * lr)?)?;
+            let new = ((var.as_tensor() * (1.0 - lr * decay))? - (update * lr)?)?.detach();
             var.set(&new)?;
         }
         Ok(())
@@ -407,7 +409,7 @@ impl Trainer {
             .min((1.0 + step as f64) / (10.0 + step as f64));
         for (name, var) in &self.vars {
             if let Some(e) = self.ema.get_mut(name) {
-                *e = ((&*e * decay)? + (var.as_tensor() * (1.0 - decay))?)?;
+                *e = ((&*e * decay)? + (var.as_tensor() * (1.0 - decay))?)?.detach();
             }
         }
         let loss = loss.to_scalar::<f32>()?;
