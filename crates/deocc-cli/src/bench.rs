@@ -20,6 +20,85 @@ use serde::Serialize;
 pub enum BenchCommand {
     /// Geometry core against Open3D: kd-tree, nearest neighbours, Chamfer, voxels, normals, ICP.
     Geometry(GeometryArgs),
+    /// Synthetic benchmark speed: views rendered per second at 640x480 with every output written,
+    /// and training pairs per second.
+    Synth(SynthArgs),
+}
+
+#[derive(Args)]
+pub struct SynthArgs {
+    #[arg(long, default_value = "bench/synth.json")]
+    json: PathBuf,
+    /// Scenes rendered (10 views each) and scenes turned into pairs.
+    #[arg(long, default_value_t = 5)]
+    scenes: usize,
+}
+
+#[derive(Serialize)]
+struct SynthReport {
+    threads: usize,
+    scenes: usize,
+    views: usize,
+    resolution: [u32; 2],
+    views_per_second_with_all_outputs: f64,
+    /// Rendering only (RGB, depth, instances, amodal masks), no ground truth and no files.
+    views_per_second_render_only: f64,
+    pairs: usize,
+    pairs_per_second: f64,
+}
+
+fn synth(a: SynthArgs) -> Result<()> {
+    use deocc_synth::dataset::{render_full_scene, render_view, write_scene};
+    use deocc_synth::pairs::{split_scene_pairs, PairConfig, Split};
+    use deocc_synth::render::SceneTriangles;
+    use rayon::prelude::*;
+    let p = deocc_synth::dataset::bench_v1();
+    let dir = tempdir()?;
+    let seeds = &p.seeds[..a.scenes.min(p.seeds.len())];
+    let t0 = Instant::now();
+    let mut views = 0;
+    for (i, &seed) in seeds.iter().enumerate() {
+        let r = render_full_scene(&p.config, seed)?;
+        write_scene(&dir.join(format!("s{i}")), &p.config, &r)?;
+        views += r.views.len();
+    }
+    let all = views as f64 / t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    for &seed in seeds {
+        let scene = deocc_synth::scene::generate_scene(&p.config, seed)?;
+        let tris = SceneTriangles::new(&scene);
+        let _: Vec<_> = (0..scene.cameras.len())
+            .into_par_iter()
+            .map(|v| render_view(&scene, &tris, &p.config, v))
+            .collect();
+    }
+    let render_only = views as f64 / t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let pairs: usize = (0..a.scenes as u64)
+        .into_par_iter()
+        .map(|i| split_scene_pairs(Split::Train, i, &PairConfig::default()).map(|s| s.len()))
+        .collect::<Result<Vec<_>, _>>()?
+        .iter()
+        .sum();
+    let pairs_per_second = pairs as f64 / t0.elapsed().as_secs_f64();
+    let _ = std::fs::remove_dir_all(&dir);
+    let report = SynthReport {
+        threads: rayon::current_num_threads(),
+        scenes: seeds.len(),
+        views,
+        resolution: [p.config.width, p.config.height],
+        views_per_second_with_all_outputs: all,
+        views_per_second_render_only: render_only,
+        pairs,
+        pairs_per_second,
+    };
+    if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("{}: cannot create", parent.display()))?;
+    }
+    deocc_io::cameras::write_json(&a.json, &report)?;
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
 }
 
 #[derive(Args)]
@@ -38,6 +117,7 @@ pub struct GeometryArgs {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Geometry(a) => geometry(a),
+        BenchCommand::Synth(a) => synth(a),
     }
 }
 

@@ -27,7 +27,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::ground_truth::{sample_surfaces, seen_flags, GroundTruth};
-use crate::render::{add_sensor_noise, render_object, render_scene, shade, Frame, SceneTriangles};
+use crate::render::{add_sensor_noise, rasterize, render_scene, shade, Frame, SceneTriangles};
 use crate::scene::{generate_scene, CameraPath, Scene, SceneConfig};
 use crate::{Result, SynthError};
 
@@ -111,18 +111,40 @@ pub fn render_view(
     let depth = DepthMap::new(w, h, sensor.depth_m).unwrap_or_else(|_| DepthMap::zeros(w, h));
     let mut amodal = Vec::new();
     let mut visibility = Vec::new();
+    // Visible pixel counts of every instance in one pass.
+    let mut visible_count = vec![0u32; scene.objects.len() + 2];
+    for &i in &frame.instance {
+        if let Some(c) = visible_count.get_mut(i as usize) {
+            *c += 1;
+        }
+    }
+    // One buffer for every object rendered alone; cleared after each use.
+    let mut alone = Frame::new(w, h);
     for (k, obj) in scene.objects.iter().enumerate() {
-        let alone = render_object(&camera, scene, tris, k);
+        // Room structure is never completed: no amodal mask for it (it would be a full-frame
+        // render per view for nothing).
+        if obj.category.is_structure() {
+            continue;
+        }
+        rasterize(
+            &camera,
+            tris,
+            tris.object_ranges[k].clone(),
+            &|_| obj.instance_id,
+            &mut alone,
+        );
         let mask: Vec<bool> = alone.instance.iter().map(|&i| i != 0).collect();
+        alone.depth_m.fill(0.0);
+        alone.instance.fill(0);
+        alone.triangle.fill(u32::MAX);
         let amodal_px = mask.iter().filter(|&&m| m).count() as u32;
         if amodal_px == 0 {
             continue;
         }
-        let visible_px = frame
-            .instance
-            .iter()
-            .filter(|&&i| i == obj.instance_id)
-            .count() as u32;
+        let visible_px = visible_count
+            .get(obj.instance_id as usize)
+            .copied()
+            .unwrap_or(0);
         let truncated = (0..w as usize).any(|u| mask[u] || mask[(h as usize - 1) * w as usize + u])
             || (0..h as usize)
                 .any(|v| mask[v * w as usize] || mask[v * w as usize + w as usize - 1]);

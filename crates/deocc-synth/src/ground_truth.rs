@@ -73,9 +73,10 @@ pub fn visible_in(p: &Point3<f32>, id: u16, camera: &Camera, frame: &Frame) -> b
 /// Marks the points any of the (noise-free) frames sees.
 pub fn seen_flags(cloud: &PointCloud, cameras: &[Camera], frames: &[Frame]) -> Vec<bool> {
     let ids = cloud.instance.as_deref().unwrap_or(&[]);
+    use rayon::prelude::*;
     cloud
         .positions
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(i, p)| {
             let id = ids.get(i).copied().unwrap_or(0) as u16;
