@@ -7,4 +7,5 @@
 
 pub mod amodal;
 pub mod masks;
+pub mod perception;
 pub mod reconstruction;

@@ -18,6 +18,7 @@
 
 pub mod complete;
 pub mod input;
+pub mod matching;
 pub mod occlusion;
 pub mod render;
 

@@ -1,0 +1,137 @@
+//! Perception figures on benchmark scenes: occlusion detection against the benchmark's definition,
+//! and cross-view grouping (adjusted Rand index) with the adaptive threshold and fixed ones.
+
+use deocc_io::images::InstanceMap;
+use deocc_pipeline::matching::{adjusted_rand_index, match_masks, MaskCentroid, Threshold};
+use deocc_pipeline::occlusion::analyse_view;
+use deocc_synth::dataset::RenderedScene;
+use deocc_synth::shapes::Category;
+use serde::Serialize;
+
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct DetectionCounts {
+    pub true_positive: usize,
+    pub false_positive: usize,
+    pub false_negative: usize,
+    pub true_negative: usize,
+}
+
+impl DetectionCounts {
+    pub fn precision(&self) -> f64 {
+        self.true_positive as f64 / (self.true_positive + self.false_positive).max(1) as f64
+    }
+    pub fn recall(&self) -> f64 {
+        self.true_positive as f64 / (self.true_positive + self.false_negative).max(1) as f64
+    }
+    pub fn f1(&self) -> f64 {
+        let (p, r) = (self.precision(), self.recall());
+        if p + r > 0.0 {
+            2.0 * p * r / (p + r)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Occlusion detection with ground-truth masks in every view of a scene (room structure and
+/// masks cut by the image border excluded; masks under 50 px excluded).
+pub fn occlusion_counts(r: &RenderedScene, counts: &mut DetectionCounts) {
+    let structure: Vec<u16> = r
+        .scene
+        .objects
+        .iter()
+        .filter(|o| o.category.is_structure())
+        .map(|o| o.instance_id)
+        .collect();
+    for view in &r.views {
+        let map = InstanceMap {
+            width: view.frame.width,
+            height: view.frame.height,
+            ids: view.frame.instance.clone(),
+        };
+        let found = analyse_view(&map, &view.depth);
+        for vis in &view.visibility {
+            if structure.contains(&vis.instance_id) || vis.truncated || vis.visible_px < 50 {
+                continue;
+            }
+            let predicted = found
+                .iter()
+                .any(|m| m.instance_id == vis.instance_id && m.is_occluded());
+            match (predicted, vis.is_occluded()) {
+                (true, true) => counts.true_positive += 1,
+                (true, false) => counts.false_positive += 1,
+                (false, true) => counts.false_negative += 1,
+                (false, false) => counts.true_negative += 1,
+            }
+        }
+    }
+}
+
+/// Every non-structure mask of every view with its centroid and true instance id.
+pub fn scene_masks(r: &RenderedScene) -> (Vec<MaskCentroid>, Vec<usize>, Vec<Category>) {
+    let mut masks = Vec::new();
+    let mut truth = Vec::new();
+    let mut cats = Vec::new();
+    for (v, view) in r.views.iter().enumerate() {
+        let w = view.frame.width as usize;
+        for obj in &r.scene.objects {
+            if obj.category.is_structure() {
+                continue;
+            }
+            let pts: Vec<_> = view
+                .frame
+                .instance
+                .iter()
+                .enumerate()
+                .filter(|(i, &id)| id == obj.instance_id && view.depth.data()[*i] > 0.0)
+                .map(|(i, _)| {
+                    view.camera.unproject_pixel(
+                        (i % w) as u32,
+                        (i / w) as u32,
+                        view.depth.data()[i],
+                    )
+                })
+                .collect();
+            if pts.len() < 50 {
+                continue;
+            }
+            let Some(c) = deocc_geometry::cloud::centroid(&pts) else {
+                continue;
+            };
+            masks.push(MaskCentroid {
+                view: v,
+                local_id: obj.instance_id,
+                centroid: c,
+                points: pts.len(),
+            });
+            truth.push(obj.instance_id as usize);
+            cats.push(obj.category);
+        }
+    }
+    (masks, truth, cats)
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct GroupingFigures {
+    pub threshold: String,
+    pub ari_mean: f64,
+    /// ARI over chair masks only (hollow backs fragment masks and shift centroids).
+    pub ari_chairs_mean: f64,
+    pub tau_mean_m: f64,
+}
+
+/// ARI of the grouping of one scene's masks, and of its chairs alone.
+pub fn grouping(r: &RenderedScene, threshold: Threshold) -> (f64, Option<f64>, f32) {
+    let (masks, truth, cats) = scene_masks(r);
+    let m = match_masks(&masks, threshold);
+    let ari = adjusted_rand_index(&m.group, &truth);
+    let chairs: Vec<usize> = (0..masks.len())
+        .filter(|&i| cats[i] == Category::Chair)
+        .collect();
+    let chair_ari = (chairs.len() >= 2).then(|| {
+        let a: Vec<usize> = chairs.iter().map(|&i| m.group[i]).collect();
+        let b: Vec<usize> = chairs.iter().map(|&i| truth[i]).collect();
+        adjusted_rand_index(&a, &b)
+    });
+    (ari, chair_ari, m.tau_m)
+}
