@@ -23,6 +23,201 @@ pub enum BenchCommand {
     /// Synthetic benchmark speed: views rendered per second at 640x480 with every output written,
     /// and training pairs per second.
     Synth(SynthArgs),
+    /// GL-DoT speed: training step, forward, 4-step completions, token scaling (linear against
+    /// softmax attention), and the same model in PyTorch timed in the same run.
+    Model(ModelArgs),
+}
+
+#[derive(Args)]
+pub struct ModelArgs {
+    #[arg(long, default_value = "bench/model.json")]
+    json: PathBuf,
+    /// Python interpreter with torch installed (skip the comparison with --no-torch).
+    #[arg(long, default_value = "python3")]
+    python: String,
+    #[arg(long)]
+    no_torch: bool,
+}
+
+#[derive(Serialize)]
+struct ModelReport {
+    threads: usize,
+    parameters: usize,
+    train_step_batch_8_s: f64,
+    forward_batch_1_s: f64,
+    complete_4_steps_batch_1_s: f64,
+    complete_4_steps_batch_8_s: f64,
+    completions_per_second_batch_1: f64,
+    completions_per_second_batch_8: f64,
+    /// Forward time at 128x128 (4x the tokens) over 64x64.
+    scaling_128_over_64_linear: f64,
+    scaling_128_over_64_softmax: f64,
+    torch: Option<serde_json::Value>,
+    /// ours / PyTorch.
+    train_step_ratio: Option<f64>,
+    forward_ratio: Option<f64>,
+    complete_4_steps_batch_1_ratio: Option<f64>,
+}
+
+fn model_bench(a: ModelArgs) -> Result<()> {
+    use candle_core::{DType, Device, Tensor};
+    use candle_nn::{VarBuilder, VarMap};
+    use deocc_model::config::{AttentionKind, GlDotConfig};
+    use deocc_model::flow::euler_sample;
+    use deocc_model::init::{randn, SeededInit};
+    use deocc_model::model::{mix_views, GlDot};
+    use deocc_model::train::AdamW;
+    let dev = Device::Cpu;
+    let build = |cfg: &GlDotConfig| -> Result<(GlDot, VarMap)> {
+        let vm = VarMap::new();
+        let vb = VarBuilder::from_backend(
+            Box::new(SeededInit::new(vm.clone(), 0)),
+            DType::F32,
+            dev.clone(),
+        );
+        Ok((GlDot::new(cfg, vb)?, vm))
+    };
+    let cfg = GlDotConfig::small();
+    let (model, vm) = build(&cfg)?;
+    let vars: std::collections::BTreeMap<String, candle_core::Var> = vm
+        .data()
+        .lock()
+        .map(|d| d.iter().map(|(k, v)| (k.clone(), v.clone())).collect())
+        .unwrap_or_default();
+    let mut opt = AdamW::new(&vars)?;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    let (r, tc, cc) = (cfg.resolution, cfg.target_channels, cfg.cond_channels);
+    let mut step = 0;
+    let (train_s, _) = median_time(5, || {
+        let b = 8;
+        let x0 = randn((b, r, r, tc), &mut rng, &dev)?;
+        let cond = randn((b, r, r, cc), &mut rng, &dev)?;
+        let toks = model.encode(&Tensor::cat(&[&cond, &cond], 0)?)?;
+        let c = mix_views(
+            &toks.narrow(0, 0, b)?,
+            &toks.narrow(0, b, b)?,
+            &Tensor::full(0.5f32, b, &dev)?,
+        )?;
+        let t = Tensor::full(0.5f32, b, &dev)?;
+        let eps = randn((b, r, r, tc), &mut rng, &dev)?;
+        let xt = deocc_model::flow::interpolate(&x0, &eps, &t)?;
+        let loss = (model.forward(&xt, &t, &cond, &c)? - (eps - x0)?)?
+            .sqr()?
+            .mean_all()?;
+        let grads = loss.backward()?;
+        let g: std::collections::BTreeMap<String, Tensor> = vars
+            .iter()
+            .filter_map(|(k, v)| grads.get(v).map(|t| (k.clone(), t.clone())))
+            .collect();
+        step += 1;
+        opt.step(&vars, &g, step, 1e-4, 0.0)?;
+        Ok(())
+    })?;
+    let forward =
+        |m: &GlDot, cfg: &GlDotConfig, b: usize, rng: &mut rand_chacha::ChaCha8Rng| -> Result<()> {
+            let cond = randn(
+                (b, cfg.resolution, cfg.resolution, cfg.cond_channels),
+                rng,
+                &dev,
+            )?;
+            let toks = m.encode(&cond)?;
+            let x = randn(
+                (b, cfg.resolution, cfg.resolution, cfg.target_channels),
+                rng,
+                &dev,
+            )?;
+            m.forward(&x, &Tensor::full(0.5f32, b, &dev)?, &cond, &toks)?;
+            Ok(())
+        };
+    let (fwd_s, _) = median_time(10, || forward(&model, &cfg, 1, &mut rng))?;
+    let mut complete = |b: usize| -> Result<f64> {
+        Ok(median_time(5, || {
+            let cond = randn((b, r, r, cc), &mut rng, &dev)?;
+            let toks = model.encode(&cond)?;
+            let noise = randn((b, r, r, tc), &mut rng, &dev)?;
+            euler_sample(&noise, 4, 1.0, |x, t| {
+                model.forward(x, &Tensor::full(t, b, &dev)?, &cond, &toks)
+            })?;
+            Ok(())
+        })?
+        .0)
+    };
+    let c1 = complete(1)?;
+    let c8 = complete(8)?;
+    let mut scaling = [0.0; 2];
+    for (k, kind) in [AttentionKind::Linear, AttentionKind::Softmax]
+        .into_iter()
+        .enumerate()
+    {
+        let mut small = cfg.clone();
+        small.attention = kind;
+        let mut big = small.clone();
+        big.resolution = 128;
+        let (ms, _) = build(&small)?;
+        let (mb, _) = build(&big)?;
+        let (ts, _) = median_time(5, || forward(&ms, &small, 1, &mut rng))?;
+        let (tb, _) = median_time(3, || forward(&mb, &big, 1, &mut rng))?;
+        scaling[k] = tb / ts;
+    }
+    let torch = if a.no_torch {
+        None
+    } else {
+        let dir = tempdir()?;
+        let mut j = serde_json::to_value(&cfg)?;
+        j["threads"] = serde_json::json!(rayon::current_num_threads());
+        let cfg_path = dir.join("config.json");
+        std::fs::write(&cfg_path, serde_json::to_string(&j)?)?;
+        let out = dir.join("torch.json");
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/bench_torch.py");
+        eprintln!("torch: running scripts/bench_torch.py");
+        let status = Command::new(&a.python)
+            .arg(&script)
+            .arg(&cfg_path)
+            .arg(&out)
+            .status()
+            .with_context(|| format!("cannot run {}", a.python))?;
+        if status.code() == Some(3) {
+            bail!(
+                "PyTorch is not installed for {}: `pip install torch` (or pass --no-torch)",
+                a.python
+            );
+        }
+        if !status.success() {
+            bail!("{} failed ({status})", script.display());
+        }
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out)?)?;
+        let _ = std::fs::remove_dir_all(&dir);
+        Some(v)
+    };
+    let ratio = |ours: f64, key: &str| {
+        torch
+            .as_ref()
+            .and_then(|t| t[key].as_f64())
+            .map(|x| ours / x)
+    };
+    let report = ModelReport {
+        threads: rayon::current_num_threads(),
+        parameters: deocc_model::model::parameter_count(&vm),
+        train_step_batch_8_s: train_s,
+        forward_batch_1_s: fwd_s,
+        complete_4_steps_batch_1_s: c1,
+        complete_4_steps_batch_8_s: c8,
+        completions_per_second_batch_1: 1.0 / c1,
+        completions_per_second_batch_8: 8.0 / c8,
+        scaling_128_over_64_linear: scaling[0],
+        scaling_128_over_64_softmax: scaling[1],
+        train_step_ratio: ratio(train_s, "train_step_batch_8_s"),
+        forward_ratio: ratio(fwd_s, "forward_batch_1_s"),
+        complete_4_steps_batch_1_ratio: ratio(c1, "complete_4_steps_batch_1_s"),
+        torch,
+    };
+    if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("{}: cannot create", parent.display()))?;
+    }
+    deocc_io::cameras::write_json(&a.json, &report)?;
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
 }
 
 #[derive(Args)]
@@ -118,6 +313,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Geometry(a) => geometry(a),
         BenchCommand::Synth(a) => synth(a),
+        BenchCommand::Model(a) => model_bench(a),
     }
 }
 
