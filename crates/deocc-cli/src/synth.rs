@@ -149,6 +149,9 @@ pub struct SheetArgs {
     /// Show training pairs from this shard instead of a scene (crop | visible | whole | amodal | depth).
     #[arg(long)]
     pairs: Option<PathBuf>,
+    /// Show the default RGB-D segmenter's segments in the last column instead of amodal masks.
+    #[arg(long)]
+    segments: bool,
     /// Views shown (rows).
     #[arg(long, default_value_t = 3)]
     rows: usize,
@@ -305,7 +308,17 @@ fn sheet(a: SheetArgs) -> Result<()> {
     let rendered = render_full_scene(&config, a.seed)?;
     let n = a.rows.clamp(1, rendered.views.len());
     let step = (rendered.views.len() / n).max(1);
-    let picked: Vec<_> = rendered.views.into_iter().step_by(step).take(n).collect();
+    let mut picked: Vec<_> = rendered.views.into_iter().step_by(step).take(n).collect();
+    if a.segments {
+        use deocc_pipeline::segment::{ConvexitySegmenter, Segmenter};
+        let seg = ConvexitySegmenter::default();
+        for v in &mut picked {
+            let map = seg.segment(&v.depth, &v.camera);
+            // Draw segments as "amodal masks" of every segment id: the sheet colours them by id.
+            v.amodal = Vec::new();
+            v.frame.instance = map.ids;
+        }
+    }
     let img = deocc_synth::sheet::contact_sheet(&picked);
     deocc_io::images::write_rgb_png(&a.out, &img)?;
     println!("wrote {}", a.out.display());

@@ -135,3 +135,70 @@ pub fn grouping(r: &RenderedScene, threshold: Threshold) -> (f64, Option<f64>, f
     });
     (ari, chair_ari, m.tau_m)
 }
+
+/// Default-segmenter mIoU of one scene's views against the ground-truth instance maps, and
+/// occlusion detection run on the segmenter's masks (a predicted mask is scored by the ground-truth
+/// instance it overlaps most).
+/// Returns (mIoU over object instances, their count, mIoU over all instances incl. floor and walls).
+pub fn segmenter_figures(
+    r: &RenderedScene,
+    seg: &dyn deocc_pipeline::segment::Segmenter,
+    counts: &mut DetectionCounts,
+) -> (f64, usize, f64) {
+    use deocc_pipeline::segment::matched_miou;
+    let structure: Vec<u16> = r
+        .scene
+        .objects
+        .iter()
+        .filter(|o| o.category.is_structure())
+        .map(|o| o.instance_id)
+        .collect();
+    let (mut sum, mut n, mut sum_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
+    for view in &r.views {
+        let truth = InstanceMap {
+            width: view.frame.width,
+            height: view.frame.height,
+            ids: view.frame.instance.clone(),
+        };
+        let pred = seg.segment(&view.depth, &view.camera);
+        if let Some((m, k)) = matched_miou(&pred, &truth, 50, &structure) {
+            sum += m * k as f64;
+            n += k;
+        }
+        if let Some((m, k)) = matched_miou(&pred, &truth, 50, &[]) {
+            sum_all += m * k as f64;
+            n_all += k;
+        }
+        // Occlusion on predicted masks, judged by the majority ground-truth instance of each.
+        let found = analyse_view(&pred, &view.depth);
+        let mut majority: std::collections::HashMap<u16, std::collections::HashMap<u16, usize>> =
+            Default::default();
+        for (&p, &t) in pred.ids.iter().zip(&truth.ids) {
+            if p != 0 {
+                *majority.entry(p).or_default().entry(t).or_default() += 1;
+            }
+        }
+        for m in &found {
+            let Some(t) = majority
+                .get(&m.instance_id)
+                .and_then(|c| c.iter().max_by_key(|(_, &k)| k).map(|(&t, _)| t))
+            else {
+                continue;
+            };
+            let Some(vis) = view.visibility.iter().find(|v| v.instance_id == t) else {
+                continue;
+            };
+            if structure.contains(&t) || t == 0 || vis.truncated || m.truncated || m.visible_px < 50
+            {
+                continue;
+            }
+            match (m.is_occluded(), vis.is_occluded()) {
+                (true, true) => counts.true_positive += 1,
+                (true, false) => counts.false_positive += 1,
+                (false, true) => counts.false_negative += 1,
+                (false, false) => counts.true_negative += 1,
+            }
+        }
+    }
+    (sum / n.max(1) as f64, n, sum_all / n_all.max(1) as f64)
+}

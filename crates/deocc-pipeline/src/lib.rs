@@ -21,6 +21,7 @@ pub mod input;
 pub mod matching;
 pub mod occlusion;
 pub mod render;
+pub mod segment;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
