@@ -155,6 +155,9 @@ struct ReconstructionReport {
     completeness_gain_hidden_region: f64,
     accuracy_change: f64,
     chamfer_gain: f64,
+    completeness_gain_whole_scene_segmenter: f64,
+    completeness_gain_hidden_region_segmenter: f64,
+    accuracy_change_segmenter: f64,
     objects_completed: usize,
     objects_per_second: f64,
     mean_stage_seconds: deocc_pipeline::StageTimings,
@@ -170,7 +173,8 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
         steps: a.steps,
         ..Default::default()
     };
-    let (mut vis_figs, mut deo_figs) = (Vec::new(), Vec::new());
+    let (mut vis_figs, mut deo_figs, mut seg_figs) = (Vec::new(), Vec::new(), Vec::new());
+    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
     let (mut objects, mut total_s) = (0usize, 0f64);
     let mut stages = deocc_pipeline::StageTimings::default();
     let pb = crate::progress::bar(n as u64, "scenes");
@@ -186,6 +190,17 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
         );
         vis_figs.push(figures(&align_to_ground_truth(&out.observed, &gt)?, &gt)?);
         deo_figs.push(figures(&align_to_ground_truth(&out.completed, &gt)?, &gt)?);
+        // The same scene with the default segmenter instead of the ground-truth masks.
+        let mut unlabeled = deocc_pipeline::input::SceneInput::from_rendered(&rendered);
+        for f in &mut unlabeled.frames {
+            f.instances = None;
+        }
+        deocc_pipeline::ensure_instances(&mut unlabeled, &segmenter);
+        let seg_out = deocc_pipeline::run(&unlabeled, &completer, &opts)?;
+        seg_figs.push(figures(
+            &align_to_ground_truth(&seg_out.completed, &gt)?,
+            &gt,
+        )?);
         objects += out.report.objects_completed;
         total_s += out.report.timings.total_s;
         let t = &out.report.timings;
@@ -200,6 +215,7 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
     pb.finish_and_clear();
     let vis = average_row("visible-only", &vis_figs);
     let deo = average_row("+ de-occlusion (ground-truth masks)", &deo_figs);
+    let seg = average_row("+ de-occlusion (default segmenter)", &seg_figs);
     let report = ReconstructionReport {
         benchmark: preset.name.clone(),
         scenes: n,
@@ -208,7 +224,12 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
             - deo.completeness_hidden_mean / vis.completeness_hidden_mean,
         accuracy_change: deo.accuracy_mean / vis.accuracy_mean - 1.0,
         chamfer_gain: 1.0 - deo.chamfer / vis.chamfer,
-        rows: vec![vis, deo],
+        completeness_gain_whole_scene_segmenter: 1.0
+            - seg.completeness_mean / vis.completeness_mean,
+        completeness_gain_hidden_region_segmenter: 1.0
+            - seg.completeness_hidden_mean / vis.completeness_hidden_mean,
+        accuracy_change_segmenter: seg.accuracy_mean / vis.accuracy_mean - 1.0,
+        rows: vec![vis, deo, seg],
         objects_completed: objects,
         objects_per_second: objects as f64 / total_s.max(1e-9),
         mean_stage_seconds: stages,

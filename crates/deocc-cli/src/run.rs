@@ -31,6 +31,10 @@ pub struct RunArgs {
     /// Denoising steps.
     #[arg(long, default_value_t = 4)]
     steps: usize,
+    /// Ignore given instance maps and segment with the default RGB-D segmenter (frames without an
+    /// instance map are always segmented).
+    #[arg(long)]
+    segment: bool,
     /// Weight of the other views in the conditioning (0 = single view).
     #[arg(long, default_value_t = 0.5)]
     rho: f32,
@@ -125,7 +129,19 @@ fn staging_dir(out: &Path) -> Result<PathBuf> {
 }
 
 fn run_into(input: &Path, out: &Path, completer: &Completer, a: &RunArgs) -> Result<()> {
-    let scene = read_scene(input)?;
+    let mut scene = read_scene(input)?;
+    if a.segment {
+        for f in &mut scene.frames {
+            f.instances = None;
+        }
+    }
+    let segmented = deocc_pipeline::ensure_instances(
+        &mut scene,
+        &deocc_pipeline::segment::ConvexitySegmenter::default(),
+    );
+    if segmented > 0 {
+        eprintln!("segmented the frames with the default RGB-D segmenter: {segmented} instances across views");
+    }
     let opts = PipelineOptions {
         steps: a.steps,
         rho: a.rho,

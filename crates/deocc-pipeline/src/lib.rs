@@ -2,13 +2,13 @@
 //!
 //! The de-occlusion pipeline of DESIGN.md, as plain functions over plain data:
 //! 1. reconstruct: back-project every frame's depth into one observed cloud (colour, instance);
-//! 2. segment: instance maps given with the input (benchmark or user masks);
+//! 2. segment: instance maps given with the input (benchmark or user masks), or the default RGB-D
+//!    segmenter ([`segment`]) with cross-view matching ([`ensure_instances`]);
 //! 3. occlusion: per view, adjacent instance masks, the farther one is occluded ([`occlusion`]);
 //!    every object's far side is hidden in every view, so by default unoccluded objects are
 //!    completed too (their far side only); `complete_unoccluded: false` restricts to occluded ones;
-//! 4. match: instance ids are consistent across views in the supported inputs (benchmark scenes,
-//!    user instance maps), so matching is the identity here; centroid matching for
-//!    view-inconsistent segmenters is a separate stage;
+//! 4. match: given instance maps are consistent across views; the segmenter's per-view masks are
+//!    matched by 3-D centroids with an adaptive threshold ([`matching`]);
 //! 5. select views: the largest visible mask first, then one more every `view_delta_deg` of viewing
 //!    direction;
 //! 6. complete each occluded instance in its selected views with GL-DoT, conditioning on its other
@@ -209,7 +209,7 @@ pub fn run(
     if scene.frames.iter().any(|f| f.instances.is_none()) {
         return Err(PipelineError::Input {
             path: scene.dir.join("instances"),
-            msg: "every frame needs an instance map (instances/NAME.png); the default RGB-D segmenter is not available yet".into(),
+            msg: "every frame needs an instance map (instances/NAME.png), or call ensure_instances() to segment it".into(),
         });
     }
 
@@ -333,4 +333,82 @@ pub fn run(
         completed,
         report,
     })
+}
+
+/// Gives every frame without an instance map one: each view is segmented by `segmenter`, masks are
+/// matched across views by their 3-D centroids ([`matching`]) and relabelled with consistent ids.
+/// Segments spanning more than 2 m (floor, walls) are marked as room structure. Returns the
+/// number of 3-D instances found (0 if every frame already had its map).
+pub fn ensure_instances(scene: &mut SceneInput, segmenter: &dyn segment::Segmenter) -> usize {
+    use matching::{match_masks, MaskCentroid, Threshold};
+    if scene.frames.iter().all(|f| f.instances.is_some()) {
+        return 0;
+    }
+    let local: Vec<deocc_io::images::InstanceMap> = scene
+        .frames
+        .iter()
+        .map(|f| segmenter.segment(&f.depth, &f.camera))
+        .collect();
+    let mut masks = Vec::new();
+    let mut extents = Vec::new();
+    for (v, (f, map)) in scene.frames.iter().zip(&local).enumerate() {
+        let w = map.width as usize;
+        let mut per: BTreeMap<u16, Vec<nalgebra::Point3<f32>>> = BTreeMap::new();
+        for (i, &id) in map.ids.iter().enumerate() {
+            if id != 0 {
+                per.entry(id).or_default().push(f.camera.unproject_pixel(
+                    (i % w) as u32,
+                    (i / w) as u32,
+                    f.depth.data()[i],
+                ));
+            }
+        }
+        for (id, pts) in per {
+            let Some(c) = deocc_geometry::cloud::centroid(&pts) else {
+                continue;
+            };
+            let (lo, hi) = pts
+                .iter()
+                .fold((pts[0], pts[0]), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
+            extents.push((hi.x - lo.x).max(hi.y - lo.y));
+            masks.push(MaskCentroid {
+                view: v,
+                local_id: id,
+                centroid: c,
+                points: pts.len(),
+            });
+        }
+    }
+    let matched = match_masks(&masks, Threshold::Adaptive);
+    let mut global: BTreeMap<(usize, u16), u16> = BTreeMap::new();
+    let mut structure = std::collections::BTreeSet::new();
+    for (k, m) in masks.iter().enumerate() {
+        let id = (matched.group[k] + 1).min(u16::MAX as usize) as u16;
+        global.insert((m.view, m.local_id), id);
+        if extents[k] > 2.0 {
+            structure.insert(id);
+        }
+    }
+    for (v, (f, map)) in scene.frames.iter_mut().zip(local).enumerate() {
+        if f.instances.is_none() {
+            let ids = map
+                .ids
+                .iter()
+                .map(|&l| {
+                    if l == 0 {
+                        0
+                    } else {
+                        global.get(&(v, l)).copied().unwrap_or(0)
+                    }
+                })
+                .collect();
+            f.instances = Some(deocc_io::images::InstanceMap {
+                width: map.width,
+                height: map.height,
+                ids,
+            });
+        }
+    }
+    scene.structure_ids.extend(structure);
+    matched.groups
 }
