@@ -35,6 +35,10 @@ pub struct TrainArgs {
     timestep_shift: f32,
     #[arg(long, default_value_t = 200)]
     checkpoint_every: usize,
+    /// Start a new run from these weights (a folder with ema.safetensors, e.g. weights/gldot-small)
+    /// instead of a random initialisation.
+    #[arg(long)]
+    init: Option<PathBuf>,
     /// Use only the first N pairs (for quick experiments).
     #[arg(long)]
     limit_pairs: Option<usize>,
@@ -77,6 +81,16 @@ pub fn run(a: TrainArgs) -> Result<()> {
     };
     let device = candle_core::Device::Cpu;
     let mut trainer = Trainer::open(&a.run, config, &device)?;
+    if let Some(init) = &a.init {
+        if trainer.state.step > 0 {
+            bail!(
+                "--init starts a new run, but {} already holds step {}",
+                a.run.display(),
+                trainer.state.step
+            );
+        }
+        trainer.init_from(&init.join("ema.safetensors"))?;
+    }
     let start = trainer.state.step;
     let total = trainer.config.steps;
     eprintln!(

@@ -297,6 +297,31 @@ impl Trainer {
         Ok(t)
     }
 
+    /// Starts from given weights (e.g. the shipped f16 EMA weights) instead of the random
+    /// initialisation: the way to continue when a run directory with optimizer state is not at hand.
+    pub fn init_from(&mut self, weights: &Path) -> Result<()> {
+        let tensors = load_tensors(weights, &self.device)?;
+        for (name, var) in &self.vars {
+            let w = tensors
+                .get(name)
+                .ok_or_else(|| file_err(weights, format!("missing tensor {name}")))?;
+            let w = w.to_dtype(DType::F32)?;
+            if w.shape() != var.shape() {
+                return Err(file_err(
+                    weights,
+                    format!(
+                        "tensor {name} has shape {:?}, the model needs {:?}",
+                        w.shape(),
+                        var.shape()
+                    ),
+                ));
+            }
+            var.set(&w)?;
+            self.ema.insert(name.clone(), w.copy()?.detach());
+        }
+        Ok(())
+    }
+
     /// Saves a complete checkpoint; `state.json` goes last so a crash mid-way leaves the previous
     /// checkpoint valid... except for the weight files already replaced, which are then one step
     /// ahead of their state: harmless for training.
