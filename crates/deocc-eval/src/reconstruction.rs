@@ -75,8 +75,17 @@ pub fn align_to_ground_truth(
 ) -> Result<PointCloud, GeometryError> {
     use deocc_geometry::align::{icp, IcpOptions, IcpTarget};
     let target = IcpTarget::new(&gt.cloud.positions, None)?;
+    // The transform is estimated on an even subsample (at most 50k points) and applied to all:
+    // the same alignment, 20x less work on million-point clouds.
+    let stride = (prediction.len() / 50_000).max(1);
+    let sample: Vec<_> = prediction
+        .positions
+        .iter()
+        .step_by(stride)
+        .copied()
+        .collect();
     let r = icp(
-        &prediction.positions,
+        &sample,
         &target,
         &nalgebra::Isometry3::identity(),
         &IcpOptions::default(),
