@@ -211,12 +211,7 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         complete_4_steps_batch_1_ratio: ratio(c1, "complete_4_steps_batch_1_s"),
         torch,
     };
-    if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .with_context(|| format!("{}: cannot create", parent.display()))?;
-    }
-    deocc_io::cameras::write_json(&a.json, &report)?;
-    println!("{}", serde_json::to_string_pretty(&report)?);
+    crate::report::write_report(&a.json, &report)?;
     Ok(())
 }
 
@@ -287,12 +282,7 @@ fn synth(a: SynthArgs) -> Result<()> {
         pairs,
         pairs_per_second,
     };
-    if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .with_context(|| format!("{}: cannot create", parent.display()))?;
-    }
-    deocc_io::cameras::write_json(&a.json, &report)?;
-    println!("{}", serde_json::to_string_pretty(&report)?);
+    crate::report::write_report(&a.json, &report)?;
     Ok(())
 }
 

@@ -124,12 +124,7 @@ fn perception(a: PerceptionArgs) -> Result<()> {
         // Includes the occlusion analysis and scoring: a lower bound on the segmenter alone.
         segmenter_views_per_second: seg_views as f64 / seg_time.max(1e-9),
     };
-    if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .with_context(|| format!("{}: cannot create", parent.display()))?;
-    }
-    deocc_io::cameras::write_json(&a.json, &report)?;
-    println!("{}", serde_json::to_string_pretty(&report)?);
+    crate::report::write_report(&a.json, &report)?;
     Ok(())
 }
 
@@ -234,12 +229,7 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
         objects_per_second: objects as f64 / total_s.max(1e-9),
         mean_stage_seconds: stages,
     };
-    if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .with_context(|| format!("{}: cannot create", parent.display()))?;
-    }
-    deocc_io::cameras::write_json(&a.json, &report)?;
-    println!("{}", serde_json::to_string_pretty(&report)?);
+    crate::report::write_report(&a.json, &report)?;
     Ok(())
 }
 
@@ -319,11 +309,6 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         opts.steps
     );
     let report = evaluate_amodal(&completer, &data, &opts)?;
-    if let Some(parent) = a.json.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .with_context(|| format!("{}: cannot create", parent.display()))?;
-    }
-    deocc_io::cameras::write_json(&a.json, &report)?;
-    println!("{}", serde_json::to_string_pretty(&report)?);
+    crate::report::write_report(&a.json, &report)?;
     Ok(())
 }

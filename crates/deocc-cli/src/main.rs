@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 mod bench;
 mod eval;
 mod progress;
+mod report;
 mod run;
 mod synth;
 mod train;
