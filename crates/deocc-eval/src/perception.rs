@@ -36,13 +36,7 @@ impl DetectionCounts {
 /// Occlusion detection with ground-truth masks in every view of a scene (room structure and
 /// masks cut by the image border excluded; masks under 50 px excluded).
 pub fn occlusion_counts(r: &RenderedScene, counts: &mut DetectionCounts) {
-    let structure: Vec<u16> = r
-        .scene
-        .objects
-        .iter()
-        .filter(|o| o.category.is_structure())
-        .map(|o| o.instance_id)
-        .collect();
+    let structure: Vec<u16> = r.scene.structure_ids();
     for view in &r.views {
         let map = InstanceMap {
             width: view.frame.width,
@@ -146,13 +140,7 @@ pub fn segmenter_figures(
     counts: &mut DetectionCounts,
 ) -> (f64, usize, f64) {
     use deocc_pipeline::segment::matched_miou;
-    let structure: Vec<u16> = r
-        .scene
-        .objects
-        .iter()
-        .filter(|o| o.category.is_structure())
-        .map(|o| o.instance_id)
-        .collect();
+    let structure: Vec<u16> = r.scene.structure_ids();
     let (mut sum, mut n, mut sum_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
     for view in &r.views {
         let truth = InstanceMap {

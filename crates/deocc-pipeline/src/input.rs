@@ -162,13 +162,7 @@ impl SceneInput {
                 }
             })
             .collect();
-        let structure_ids = rendered
-            .scene
-            .objects
-            .iter()
-            .filter(|o| o.category.is_structure())
-            .map(|o| o.instance_id)
-            .collect();
+        let structure_ids = rendered.scene.structure_ids();
         Self {
             dir: PathBuf::from(format!("<scene seed {}>", rendered.scene.seed)),
             frames,

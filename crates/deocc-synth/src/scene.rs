@@ -131,6 +131,17 @@ const PALETTE: [[u8; 3]; 14] = [
     [100, 100, 160],
 ];
 
+impl Scene {
+    /// Instance ids of room structure (floor, walls): never completed.
+    pub fn structure_ids(&self) -> Vec<u16> {
+        self.objects
+            .iter()
+            .filter(|o| o.category.is_structure())
+            .map(|o| o.instance_id)
+            .collect()
+    }
+}
+
 fn appearance(r: &mut impl Rng) -> Appearance {
     let color_a = PALETTE[r.random_range(0..PALETTE.len())];
     let color_b = PALETTE[r.random_range(0..PALETTE.len())];
