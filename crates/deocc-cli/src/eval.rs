@@ -29,6 +29,22 @@ pub struct PerceptionArgs {
     /// Number of bench-v1 scenes (the first N of its 50).
     #[arg(long, default_value_t = 50)]
     scenes: usize,
+    /// Number of chairs-v1 scenes (hollow-back chairs, the named failure case; 0 skips them).
+    #[arg(long, default_value_t = 10)]
+    failure_scenes: usize,
+}
+
+/// The named failure case on its own scenes (`chairs-v1`: hollow-back chairs).
+#[derive(serde::Serialize)]
+struct FailureCaseFigures {
+    benchmark: String,
+    scenes: usize,
+    /// Grouping of chair masks (ground-truth masks), adaptive tau and the fixed 5 cm one.
+    grouping_ari_chairs: f64,
+    grouping_ari_chairs_fixed_0_05: f64,
+    /// Default segmenter: mIoU of chairs and of every object.
+    segmenter_miou_chairs: f64,
+    segmenter_miou: f64,
 }
 
 #[derive(serde::Serialize)]
@@ -52,6 +68,48 @@ struct PerceptionReport {
     segmenter_occlusion_recall: f64,
     segmenter_occlusion_f1: f64,
     segmenter_views_per_second: f64,
+    /// Segmenter mIoU per category (floor and walls included).
+    segmenter_miou_by_category: std::collections::BTreeMap<String, f64>,
+    hollow_back_chairs: Option<FailureCaseFigures>,
+}
+
+fn failure_case(scenes: usize) -> Result<FailureCaseFigures> {
+    use deocc_eval::perception::{grouping, segmenter_figures, DetectionCounts, SegmenterIous};
+    use deocc_pipeline::matching::Threshold;
+    let mut preset = deocc_synth::dataset::chairs_v1();
+    preset.config.gt_points_per_m2 = 10.0;
+    let n = scenes.min(preset.seeds.len());
+    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
+    let mut ious = SegmenterIous::default();
+    let mut counts = DetectionCounts::default();
+    let (mut adaptive, mut fixed, mut k) = (0.0, 0.0, 0usize);
+    let pb = crate::progress::bar(n as u64, "chairs-v1 scenes");
+    for &seed in &preset.seeds[..n] {
+        let r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        segmenter_figures(&r, &segmenter, &mut counts, &mut ious);
+        if let (Some(a), Some(f)) = (
+            grouping(&r, Threshold::Adaptive).1,
+            grouping(&r, Threshold::Fixed(0.05)).1,
+        ) {
+            adaptive += a;
+            fixed += f;
+            k += 1;
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    Ok(FailureCaseFigures {
+        benchmark: preset.name,
+        scenes: n,
+        grouping_ari_chairs: adaptive / k.max(1) as f64,
+        grouping_ari_chairs_fixed_0_05: fixed / k.max(1) as f64,
+        segmenter_miou_chairs: ious
+            .per_category()
+            .get("chair")
+            .copied()
+            .unwrap_or(f64::NAN),
+        segmenter_miou: ious.miou_objects(),
+    })
 }
 
 fn perception(a: PerceptionArgs) -> Result<()> {
@@ -69,21 +127,17 @@ fn perception(a: PerceptionArgs) -> Result<()> {
     let mut counts = DetectionCounts::default();
     let mut seg_counts = DetectionCounts::default();
     let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
-    let (mut seg_sum, mut seg_n, mut seg_time, mut seg_views) = (0.0f64, 0usize, 0.0f64, 0usize);
-    let mut seg_all = 0.0f64;
+    let mut seg_ious = deocc_eval::perception::SegmenterIous::default();
+    let (mut seg_time, mut seg_views) = (0.0f64, 0usize);
     let mut sums = vec![(0.0f64, 0.0f64, 0usize, 0.0f64); thresholds.len()];
     let pb = crate::progress::bar(n as u64, "scenes");
     for &seed in &preset.seeds[..n] {
         let r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         occlusion_counts(&r, &mut counts);
         let t0 = std::time::Instant::now();
-        let (m, k, all) =
-            deocc_eval::perception::segmenter_figures(&r, &segmenter, &mut seg_counts);
-        seg_all += all / n as f64;
+        deocc_eval::perception::segmenter_figures(&r, &segmenter, &mut seg_counts, &mut seg_ious);
         seg_time += t0.elapsed().as_secs_f64();
         seg_views += r.views.len();
-        seg_sum += m * k as f64;
-        seg_n += k;
         for (k, (_, t)) in thresholds.iter().enumerate() {
             let (ari, chairs, tau) = grouping(&r, *t);
             sums[k].0 += ari;
@@ -116,13 +170,17 @@ fn perception(a: PerceptionArgs) -> Result<()> {
         grouping_ari: ablation[0].ari_mean,
         grouping_ari_chairs: ablation[0].ari_chairs_mean,
         grouping_ablation: ablation,
-        segmenter_miou: seg_sum / seg_n.max(1) as f64,
-        segmenter_miou_with_structure: seg_all,
+        segmenter_miou: seg_ious.miou_objects(),
+        segmenter_miou_with_structure: seg_ious.miou_all(),
         segmenter_occlusion_precision: seg_counts.precision(),
         segmenter_occlusion_recall: seg_counts.recall(),
         segmenter_occlusion_f1: seg_counts.f1(),
         // Includes the occlusion analysis and scoring: a lower bound on the segmenter alone.
         segmenter_views_per_second: seg_views as f64 / seg_time.max(1e-9),
+        segmenter_miou_by_category: seg_ious.per_category(),
+        hollow_back_chairs: (a.failure_scenes > 0)
+            .then(|| failure_case(a.failure_scenes))
+            .transpose()?,
     };
     crate::report::write_report(&a.json, &report)?;
     Ok(())

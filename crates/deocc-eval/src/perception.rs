@@ -133,15 +133,15 @@ pub fn grouping(r: &RenderedScene, threshold: Threshold) -> (f64, Option<f64>, f
 /// Default-segmenter mIoU of one scene's views against the ground-truth instance maps, and
 /// occlusion detection run on the segmenter's masks (a predicted mask is scored by the ground-truth
 /// instance it overlaps most).
-/// Returns (mIoU over object instances, their count, mIoU over all instances incl. floor and walls).
+/// Adds to `ious` the matched IoU of every ground-truth instance (>= 50 px) of every view.
 pub fn segmenter_figures(
     r: &RenderedScene,
     seg: &dyn deocc_pipeline::segment::Segmenter,
     counts: &mut DetectionCounts,
-) -> (f64, usize, f64) {
-    use deocc_pipeline::segment::matched_miou;
+    ious: &mut SegmenterIous,
+) {
+    use deocc_pipeline::segment::matched_ious;
     let structure: Vec<u16> = r.scene.structure_ids();
-    let (mut sum, mut n, mut sum_all, mut n_all) = (0.0, 0usize, 0.0, 0usize);
     for view in &r.views {
         let truth = InstanceMap {
             width: view.frame.width,
@@ -149,13 +149,14 @@ pub fn segmenter_figures(
             ids: view.frame.instance.clone(),
         };
         let pred = seg.segment(&view.depth, &view.camera);
-        if let Some((m, k)) = matched_miou(&pred, &truth, 50, &structure) {
-            sum += m * k as f64;
-            n += k;
-        }
-        if let Some((m, k)) = matched_miou(&pred, &truth, 50, &[]) {
-            sum_all += m * k as f64;
-            n_all += k;
+        for (t, iou) in matched_ious(&pred, &truth, 50, &[]) {
+            let category = r
+                .scene
+                .objects
+                .iter()
+                .find(|o| o.instance_id == t)
+                .map_or("unknown", |o| o.category.name());
+            ious.add(category, iou, structure.contains(&t));
         }
         // Occlusion on predicted masks, judged by the majority ground-truth instance of each.
         let found = analyse_view(&pred, &view.depth);
@@ -188,5 +189,41 @@ pub fn segmenter_figures(
             }
         }
     }
-    (sum / n.max(1) as f64, n, sum_all / n_all.max(1) as f64)
+}
+
+/// Matched IoUs of the segmenter, pooled over views and scenes, per category.
+#[derive(Debug, Clone, Default)]
+pub struct SegmenterIous {
+    /// category -> (sum of IoU, count)
+    pub by_category: std::collections::BTreeMap<String, (f64, usize)>,
+    objects: (f64, usize),
+    all: (f64, usize),
+}
+
+impl SegmenterIous {
+    pub fn add(&mut self, category: &str, iou: f64, structure: bool) {
+        let c = self.by_category.entry(category.to_string()).or_default();
+        c.0 += iou;
+        c.1 += 1;
+        if !structure {
+            self.objects.0 += iou;
+            self.objects.1 += 1;
+        }
+        self.all.0 += iou;
+        self.all.1 += 1;
+    }
+    /// Mean over object instances (floor and walls excluded).
+    pub fn miou_objects(&self) -> f64 {
+        self.objects.0 / self.objects.1.max(1) as f64
+    }
+    /// Mean over every instance, floor and walls included.
+    pub fn miou_all(&self) -> f64 {
+        self.all.0 / self.all.1.max(1) as f64
+    }
+    pub fn per_category(&self) -> std::collections::BTreeMap<String, f64> {
+        self.by_category
+            .iter()
+            .map(|(k, &(s, n))| (k.clone(), s / n.max(1) as f64))
+            .collect()
+    }
 }

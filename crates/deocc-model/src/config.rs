@@ -31,6 +31,12 @@ pub struct GlDotConfig {
     /// Patch side of the condition encoder's tokens.
     pub cond_patch: usize,
     pub cond_depth: usize,
+    /// The denoiser generates the residual over the visible prior (the crop's visible pixels on
+    /// white, the visible mask, the visible depth; see [`crate::data::visible_prior`]) instead of
+    /// the whole target. The unoccluded part of an object is then zero to generate, and the model
+    /// spends its capacity on the hidden part. Older weights were trained without it.
+    #[serde(default)]
+    pub residual: bool,
 }
 
 impl GlDotConfig {
@@ -48,6 +54,7 @@ impl GlDotConfig {
             attention: AttentionKind::Linear,
             cond_patch: 8,
             cond_depth: 1,
+            residual: true,
         }
     }
 
@@ -65,6 +72,7 @@ impl GlDotConfig {
             attention: AttentionKind::Linear,
             cond_patch: 8,
             cond_depth: 2,
+            residual: true,
         }
     }
 
@@ -83,6 +91,7 @@ impl GlDotConfig {
             attention: AttentionKind::Linear,
             cond_patch: 8,
             cond_depth: 4,
+            residual: true,
         }
     }
 

@@ -26,7 +26,7 @@ pub struct Completer {
 pub struct Completion {
     /// (R*R*3) RGB of the whole object on white.
     pub rgb: Vec<u8>,
-    /// (R*R) amodal mask: the mask channel above 0.
+    /// (R*R) amodal mask: the mask channel above 0, or visible.
     pub amodal: Vec<bool>,
     /// (R*R) relative depth of the near side (the training pairs' units), meaningful inside `amodal`.
     pub depth_rel: Vec<f32>,
@@ -129,11 +129,18 @@ impl Completer {
             let tt = Tensor::full(t, b, &self.device)?;
             self.model.forward(x, &tt, cond, &tokens)
         })?;
+        let x0 = if self.model.config.residual {
+            (x0 + crate::data::visible_prior(cond)?)?
+        } else {
+            x0
+        };
         let data = x0.flatten_all()?.to_vec1::<f32>()?;
+        let cond_data = cond.flatten_all()?.to_vec1::<f32>()?;
         let n = r * r;
         Ok((0..b)
             .map(|k| {
                 let px = &data[k * n * TARGET_CHANNELS..(k + 1) * n * TARGET_CHANNELS];
+                let cx = &cond_data[k * n * COND_CHANNELS..(k + 1) * n * COND_CHANNELS];
                 Completion {
                     rgb: px
                         .chunks_exact(TARGET_CHANNELS)
@@ -143,9 +150,11 @@ impl Completer {
                                 .collect::<Vec<_>>()
                         })
                         .collect(),
+                    // The amodal mask contains the visible mask by definition.
                     amodal: px
                         .chunks_exact(TARGET_CHANNELS)
-                        .map(|p| p[3] > 0.0)
+                        .zip(cx.chunks_exact(COND_CHANNELS))
+                        .map(|(p, c)| p[3] > 0.0 || c[3] > 0.0)
                         .collect(),
                     depth_rel: px
                         .chunks_exact(TARGET_CHANNELS)

@@ -355,6 +355,11 @@ impl Trainer {
         let b = indices.len();
         let flips: Vec<bool> = (0..b).map(|_| rng.random_bool(0.5)).collect();
         let (x0, cond) = data.batch(indices, &flips, &self.device)?;
+        let x0 = if cfg.model.residual {
+            (x0 - crate::data::visible_prior(&cond)?)?
+        } else {
+            x0
+        };
         // Other views for cross-view conditioning (own view with rho = 0 when none is drawn).
         let mut others = Vec::with_capacity(b);
         let mut rho = Vec::with_capacity(b);

@@ -7,8 +7,16 @@
 //! (normals turning away from each other, as on the edge of a box). Depth jumps separate objects
 //! from what is behind them; concave creases separate an object from the table it stands on, a
 //! table from the floor, the floor from the walls. Support planes therefore come out as segments of
-//! their own. Known weakness, measured by `deocc eval perception`: parts joined by concave creases
-//! (chair legs under a seat) come out as separate segments.
+//! their own.
+//!
+//! Parts of one object also meet at concave creases (a table's legs under its top, a shelf's boards
+//! between its sides), so a second stage merges touching segments back together, guided by gravity:
+//! two segments that touch (no depth jump across their shared boundary) are one object unless one
+//! *rests on* the other, that is, the contact lies at the bottom of one and on an upward-facing
+//! surface of the other (a mug on a table, a table's legs on the floor). A table's legs meet the
+//! top at its rim or underside, which faces sideways or down, so they join the top. Merges stop at
+//! `max_object_extent_m` so that rooms (floor, walls) never merge. Known weakness, measured by
+//! `deocc eval perception`: a chair's back stands on its seat and stays a segment of its own.
 
 use deocc_geometry::camera::Camera;
 use deocc_geometry::DepthMap;
@@ -27,6 +35,12 @@ pub struct ConvexitySegmenter {
     /// Depth continuity: neighbours closer than `abs + rel * z` in depth are continuous.
     pub depth_abs_m: f32,
     pub depth_rel: f32,
+    /// Surface continuity: the tangent plane of each of two neighbours predicts the other's depth
+    /// within `step_abs_m + step_rel * z`. Catches the small depth steps the plain test lets
+    /// through: a box's top face and the table top seen just behind it are parallel and a few
+    /// centimetres apart in depth, but not one surface.
+    pub step_abs_m: f32,
+    pub step_rel: f32,
     /// Normals are estimated from neighbours this many pixels away (noise against detail).
     pub normal_step: usize,
     /// Tolerance of the concavity test, `(n_i - n_j) . (p_i - p_j) >= -tol * |p_i - p_j|`: absorbs
@@ -39,6 +53,23 @@ pub struct ConvexitySegmenter {
     pub crease_reach: usize,
     /// Segments smaller than this (pixels) are dropped (id 0).
     pub min_segment_px: usize,
+    /// Unlabelled pixels join a neighbouring segment up to this many pixels deep.
+    pub fill_passes: usize,
+    /// Gravity in the world frame points along `-up_world` (z-up, as in ROS REP-103 and the
+    /// benchmark).
+    pub up_world: Vector3<f32>,
+    /// Touching: neighbouring pixels of two segments closer than `contact_abs_m + contact_rel * z`.
+    pub contact_abs_m: f32,
+    pub contact_rel: f32,
+    /// A contact within this height of a segment's lowest point is at its bottom.
+    pub rest_height_m: f32,
+    /// A segment whose top is at most this far under another's bottom, inside its footprint and
+    /// hidden by it, hangs under it (legs under a table top, seen from above).
+    pub hang_gap_m: f32,
+    /// Merged objects never grow beyond this box diagonal (metres).
+    pub max_object_extent_m: f32,
+    /// Two segments touch when they share at least this many neighbouring pixel pairs.
+    pub min_contact_px: usize,
 }
 
 impl Default for ConvexitySegmenter {
@@ -46,11 +77,21 @@ impl Default for ConvexitySegmenter {
         Self {
             depth_abs_m: 0.01,
             depth_rel: 0.02,
+            step_abs_m: 0.002,
+            step_rel: 0.0015,
             normal_step: 2,
             concave_tolerance: 0.15,
             smooth_deg: 12.0,
             crease_reach: 3,
             min_segment_px: 80,
+            fill_passes: 3,
+            up_world: Vector3::z(),
+            contact_abs_m: 0.01,
+            contact_rel: 0.01,
+            rest_height_m: 0.03,
+            hang_gap_m: 0.15,
+            max_object_extent_m: 2.2,
+            min_contact_px: 4,
         }
     }
 }
@@ -96,6 +137,192 @@ impl ConvexitySegmenter {
         }
         (pts, normals)
     }
+
+    /// The gravity-guided merge of touching parts (see the module docs). `roots[i]` is pixel i's
+    /// segment; merged segments get a common root.
+    fn merge_parts(
+        &self,
+        roots: &mut [u32],
+        d: &[f32],
+        pts: &[Point3<f32>],
+        normals: &[Vector3<f32>],
+        camera: &Camera,
+        w: usize,
+    ) {
+        use std::collections::HashMap;
+        let n = roots.len();
+        let up = camera
+            .world_from_camera
+            .rotation
+            .inverse_transform_vector(&self.up_world)
+            .normalize();
+        // Segment boxes in a gravity-aligned frame (z up), from which heights are read.
+        let level = nalgebra::Rotation3::rotation_between(&self.up_world, &Vector3::z())
+            .unwrap_or_else(|| {
+                nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI)
+            });
+        let mut index: HashMap<u32, usize> = HashMap::new();
+        let mut seg = vec![usize::MAX; n];
+        let mut bbox: Vec<(Point3<f32>, Point3<f32>)> = Vec::new();
+        for i in 0..n {
+            if d[i] <= 0.0 {
+                continue;
+            }
+            let k = *index.entry(roots[i]).or_insert_with(|| {
+                bbox.push((
+                    Point3::from([f32::INFINITY; 3]),
+                    Point3::from([f32::NEG_INFINITY; 3]),
+                ));
+                bbox.len() - 1
+            });
+            seg[i] = k;
+            let p = level * (camera.world_from_camera * pts[i]);
+            let b = &mut bbox[k];
+            b.0 = b.0.inf(&p);
+            b.1 = b.1.sup(&p);
+        }
+        let lowest: Vec<f32> = bbox.iter().map(|b| b.0.z).collect();
+        // Neighbouring pixel pairs across segment boundaries: how many, how many touch in 3-D
+        // (no depth jump), at what height, how many of the touching ones see an upward-facing
+        // surface on either side (normals from `crease_reach` inside), and which side is nearer.
+        #[derive(Default)]
+        struct Contact {
+            adjacent: usize,
+            nearer: [usize; 2],
+            pairs: usize,
+            height_sum: f32,
+            up_facing: [usize; 2],
+        }
+        let mut contacts: HashMap<(usize, usize), Contact> = HashMap::new();
+        let reach = self.crease_reach;
+        let cos_up = 30f32.to_radians().cos();
+        let h = n / w;
+        for v in 0..h {
+            for u in 0..w {
+                let i = v * w + u;
+                for (j, step) in [
+                    (u + 1 < w).then_some((i + 1, 1)),
+                    (v + 1 < h).then_some((i + w, w)),
+                ]
+                .into_iter()
+                .flatten()
+                {
+                    let (a, b) = (seg[i], seg[j]);
+                    if a == usize::MAX || b == usize::MAX || a == b {
+                        continue;
+                    }
+                    let (key, swap) = if a < b {
+                        ((a, b), false)
+                    } else {
+                        ((b, a), true)
+                    };
+                    let c = contacts.entry(key).or_default();
+                    c.adjacent += 1;
+                    let i_nearer = d[i] < d[j];
+                    c.nearer[(i_nearer == swap) as usize] += 1;
+                    let z = d[i].min(d[j]);
+                    if (pts[i] - pts[j]).norm() > self.contact_abs_m + self.contact_rel * z {
+                        continue;
+                    }
+                    let inside_i = i
+                        .checked_sub(reach * step)
+                        .filter(|&x| seg[x] == a)
+                        .unwrap_or(i);
+                    let inside_j = Some(j + reach * step)
+                        .filter(|&x| x < n && seg[x] == b)
+                        .unwrap_or(j);
+                    let up_i = normals[inside_i].dot(&up) > cos_up;
+                    let up_j = normals[inside_j].dot(&up) > cos_up;
+                    let ups = if swap { [up_j, up_i] } else { [up_i, up_j] };
+                    c.pairs += 1;
+                    c.height_sum += 0.5 * (level * (camera.world_from_camera * pts[i])).z
+                        + 0.5 * (level * (camera.world_from_camera * pts[j])).z;
+                    for s in 0..2 {
+                        c.up_facing[s] += ups[s] as usize;
+                    }
+                }
+            }
+        }
+        // `low` hangs under `high`: its top is just under `high`'s bottom, within its footprint,
+        // and `high` hides it along their shared boundary (a table's legs under its top).
+        let hangs_under = |low: usize, high: usize, c: &Contact, high_side: usize| -> bool {
+            let (l, hb) = (&bbox[low], &bbox[high]);
+            let gap = hb.0.z - l.1.z;
+            let margin = 0.02;
+            c.adjacent >= self.min_contact_px
+                && 2 * c.nearer[high_side] > c.adjacent
+                && gap > -margin
+                && gap < self.hang_gap_m
+                && l.0.x >= hb.0.x - margin
+                && l.1.x <= hb.1.x + margin
+                && l.0.y >= hb.0.y - margin
+                && l.1.y <= hb.1.y + margin
+        };
+        // `top` rests on the other: the contact is at `top`'s bottom, on an upward-facing surface
+        // of the other.
+        let rests_on = |top: usize, top_side: usize, c: &Contact, height: f32| -> bool {
+            height - lowest[top] < self.rest_height_m && 2 * c.up_facing[1 - top_side] > c.pairs
+        };
+        let mut candidates: Vec<((usize, usize), usize)> = contacts
+            .iter()
+            .filter(|(&(a, b), c)| {
+                let touching = c.pairs >= self.min_contact_px && {
+                    let height = c.height_sum / c.pairs as f32;
+                    !rests_on(a, 0, c, height) && !rests_on(b, 1, c, height)
+                };
+                touching || hangs_under(a, b, c, 1) || hangs_under(b, a, c, 0)
+            })
+            .map(|(&k, c)| (k, c.adjacent))
+            .collect();
+        if std::env::var("DEOCC_SEG_DEBUG").is_ok() {
+            for (&(a, b), c) in &contacts {
+                if c.adjacent >= 20 {
+                    eprintln!(
+                        "{a}[{:.2},{:.2},{:.2}..{:.2},{:.2},{:.2}] {b}[{:.2},{:.2},{:.2}..{:.2},{:.2},{:.2}] adj {} nearer {:?} touch {} up {:?}",
+                        bbox[a].0.x, bbox[a].0.y, bbox[a].0.z, bbox[a].1.x, bbox[a].1.y, bbox[a].1.z,
+                        bbox[b].0.x, bbox[b].0.y, bbox[b].0.z, bbox[b].1.x, bbox[b].1.y, bbox[b].1.z,
+                        c.adjacent, c.nearer, c.pairs, c.up_facing
+                    );
+                }
+            }
+        }
+        candidates.sort_by_key(|&((a, b), pairs)| (std::cmp::Reverse(pairs), a, b));
+        // The floor (flat and lowest in view) never merges: anything it touches stands on it, but a
+        // partly visible object can meet it at its side.
+        let floor_z = lowest.iter().copied().fold(f32::INFINITY, f32::min);
+        let floor: Vec<bool> = bbox
+            .iter()
+            .map(|b| b.0.z < floor_z + 0.03 && b.1.z < floor_z + 0.05)
+            .collect();
+        let mut parent: Vec<u32> = (0..bbox.len() as u32).collect();
+        for ((a, b), _) in candidates {
+            if floor[a] || floor[b] {
+                continue;
+            }
+            let (ra, rb) = (
+                find(&mut parent, a as u32) as usize,
+                find(&mut parent, b as u32) as usize,
+            );
+            if ra == rb {
+                continue;
+            }
+            let merged = (bbox[ra].0.inf(&bbox[rb].0), bbox[ra].1.sup(&bbox[rb].1));
+            if (merged.1 - merged.0).norm() > self.max_object_extent_m {
+                continue;
+            }
+            parent[ra] = rb as u32;
+            bbox[rb] = merged;
+        }
+        // Back to pixel roots: every pixel of a merged group takes the group's representative.
+        let rep: Vec<u32> = (0..bbox.len() as u32)
+            .map(|k| find(&mut parent, k))
+            .collect();
+        for i in 0..n {
+            if seg[i] != usize::MAX {
+                roots[i] = rep[seg[i]];
+            }
+        }
+    }
 }
 
 impl Segmenter for ConvexitySegmenter {
@@ -114,6 +341,20 @@ impl Segmenter for ConvexitySegmenter {
             }
             if (zi - zj).abs() > self.depth_abs_m + self.depth_rel * zi.min(zj) {
                 return false;
+            }
+            // Each neighbour's tangent plane must predict the other's depth along its ray: a box's
+            // top and the table just behind it are parallel, a few centimetres apart, and pass
+            // every other test.
+            let tol = self.step_abs_m + self.step_rel * zi.min(zj);
+            for (from, to, z_to) in [(i, j, zj), (j, i, zi)] {
+                let n = normals[from];
+                if n == Vector3::zeros() {
+                    continue;
+                }
+                let denom = n.dot(&(pts[to].coords / z_to));
+                if denom.abs() < 1e-3 || (n.dot(&pts[from].coords) / denom - z_to).abs() > tol {
+                    return false;
+                }
             }
             // Judge the crease between (i, j) from a little way off on either side: normals
             // estimated right at a crease blend both surfaces and hide it.
@@ -157,7 +398,8 @@ impl Segmenter for ConvexitySegmenter {
             }
         }
         let mut size = vec![0usize; w * h];
-        let roots: Vec<u32> = (0..w * h).map(|i| find(&mut parent, i as u32)).collect();
+        let mut roots: Vec<u32> = (0..w * h).map(|i| find(&mut parent, i as u32)).collect();
+        self.merge_parts(&mut roots, d, &pts, &normals, camera, w);
         for (i, &r) in roots.iter().enumerate() {
             if d[i] > 0.0 {
                 size[r as usize] += 1;
@@ -175,22 +417,64 @@ impl Segmenter for ConvexitySegmenter {
                 (*label.entry(r).or_insert(next)).min(u16::MAX as usize) as u16
             })
             .collect();
-        InstanceMap {
+        let mut map = InstanceMap {
             width: w as u32,
             height: h as u32,
             ids,
+        };
+        self.fill_gaps(&mut map, d);
+        map
+    }
+}
+
+impl ConvexitySegmenter {
+    /// Pixels with depth left unlabelled (dropped slivers along edges, where normals blend two
+    /// surfaces) join the neighbouring segment closest in depth, a few pixels deep. Without this a
+    /// seam of unlabelled pixels separates an occluder from what it hides and the occlusion
+    /// analysis, which looks at shared boundaries, misses it.
+    fn fill_gaps(&self, map: &mut InstanceMap, d: &[f32]) {
+        let (w, h) = (map.width as usize, map.height as usize);
+        for _ in 0..self.fill_passes {
+            let ids = map.ids.clone();
+            let mut changed = false;
+            for v in 0..h {
+                for u in 0..w {
+                    let i = v * w + u;
+                    if ids[i] != 0 || d[i] <= 0.0 {
+                        continue;
+                    }
+                    let tol = self.depth_abs_m + self.depth_rel * d[i];
+                    let best = [
+                        (u > 0).then(|| i - 1),
+                        (u + 1 < w).then(|| i + 1),
+                        (v > 0).then(|| i - w),
+                        (v + 1 < h).then(|| i + w),
+                    ]
+                    .into_iter()
+                    .flatten()
+                    .filter(|&j| ids[j] != 0 && (d[j] - d[i]).abs() <= tol)
+                    .min_by(|&a, &b| (d[a] - d[i]).abs().total_cmp(&(d[b] - d[i]).abs()));
+                    if let Some(j) = best {
+                        map.ids[i] = ids[j];
+                        changed = true;
+                    }
+                }
+            }
+            if !changed {
+                break;
+            }
         }
     }
 }
 
-/// Matches every ground-truth instance to its best-overlapping segment; returns the mean IoU over
-/// ground-truth instances with at least `min_px` visible pixels.
-pub fn matched_miou(
+/// Matches every ground-truth instance to its best-overlapping segment; returns (instance id,
+/// IoU) for the ground-truth instances with at least `min_px` visible pixels, not in `skip`.
+pub fn matched_ious(
     predicted: &InstanceMap,
     truth: &InstanceMap,
     min_px: usize,
     skip: &[u16],
-) -> Option<(f64, usize)> {
+) -> Vec<(u16, f64)> {
     use std::collections::HashMap;
     let mut inter: HashMap<(u16, u16), usize> = HashMap::new();
     let mut area_t: HashMap<u16, usize> = HashMap::new();
@@ -206,16 +490,17 @@ pub fn matched_miou(
             *inter.entry((t, p)).or_default() += 1;
         }
     }
-    let ious: Vec<f64> = area_t
+    let mut best: HashMap<u16, f64> = HashMap::new();
+    for (&(t, p), &i) in &inter {
+        let iou = i as f64 / (area_t[&t] + area_p[&p] - i) as f64;
+        let b = best.entry(t).or_default();
+        *b = b.max(iou);
+    }
+    let mut out: Vec<(u16, f64)> = area_t
         .iter()
         .filter(|(t, &a)| a >= min_px && !skip.contains(t))
-        .map(|(&t, &at)| {
-            inter
-                .iter()
-                .filter(|((tt, _), _)| *tt == t)
-                .map(|((_, p), &i)| i as f64 / (at + area_p[p] - i) as f64)
-                .fold(0.0, f64::max)
-        })
+        .map(|(&t, _)| (t, best.get(&t).copied().unwrap_or(0.0)))
         .collect();
-    (!ious.is_empty()).then(|| (ious.iter().sum::<f64>() / ious.len() as f64, ious.len()))
+    out.sort_by_key(|&(t, _)| t);
+    out
 }

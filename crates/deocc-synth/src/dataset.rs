@@ -299,10 +299,33 @@ pub fn bench_v1() -> Preset {
     }
 }
 
+/// `chairs-v1`: the failure case named by the reference work, on its own: 10 scenes with 3-4
+/// chairs each, every one with a hollow back (two posts and a rail: non-convex, fragmenting
+/// masks and pulling centroids off the object), few things on the table, no shelf.
+pub fn chairs_v1() -> Preset {
+    Preset {
+        name: "chairs-v1".into(),
+        config: SceneConfig {
+            views: 10,
+            camera_path: CameraPath::RobotHead,
+            held_out_shapes: true,
+            chairs_min: 3,
+            chairs_max: 4,
+            hollow_back_probability: 1.0,
+            tabletop_objects_min: 1,
+            tabletop_objects_max: 2,
+            shelf_probability: 0.0,
+            ..SceneConfig::default()
+        },
+        seeds: (9_100_000..9_100_010).collect(),
+    }
+}
+
 /// Named presets known to `deocc synth scenes --preset`.
 pub fn preset(name: &str) -> Result<Preset> {
     match name {
         "bench-v1" => Ok(bench_v1()),
+        "chairs-v1" => Ok(chairs_v1()),
         "bench-v1-small" => {
             // The first 5 scenes of bench-v1 at 320x240: for tests and quick looks.
             let mut p = bench_v1();
@@ -314,7 +337,7 @@ pub fn preset(name: &str) -> Result<Preset> {
             Ok(p)
         }
         other => Err(SynthError::Config(format!(
-            "unknown preset '{other}' (known: bench-v1, bench-v1-small)"
+            "unknown preset '{other}' (known: bench-v1, bench-v1-small, chairs-v1)"
         ))),
     }
 }

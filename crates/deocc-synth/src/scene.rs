@@ -45,7 +45,10 @@ pub struct SceneConfig {
     pub camera_path: CameraPath,
     pub tabletop_objects_min: usize,
     pub tabletop_objects_max: usize,
+    pub chairs_min: usize,
     pub chairs_max: usize,
+    /// Probability that a chair has a hollow back.
+    pub hollow_back_probability: f64,
     /// Probability of a shelf with objects against the back wall.
     pub shelf_probability: f64,
     /// Allow the held-out shapes (vase, L-bracket): true for test scenes only.
@@ -67,7 +70,9 @@ impl Default for SceneConfig {
             camera_path: CameraPath::RobotHead,
             tabletop_objects_min: 4,
             tabletop_objects_max: 8,
+            chairs_min: 0,
             chairs_max: 3,
+            hollow_back_probability: 0.5,
             shelf_probability: 0.4,
             held_out_shapes: false,
             gt_points_per_m2: 10_000.0,
@@ -266,9 +271,9 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
     };
 
     // Chairs along the long sides, some pushed under the table.
-    let n_chairs = r.random_range(0..=config.chairs_max);
+    let n_chairs = r.random_range(config.chairs_min.min(config.chairs_max)..=config.chairs_max);
     for k in 0..n_chairs {
-        let chair = shapes::chair(&mut r);
+        let chair = shapes::chair(&mut r, config.hollow_back_probability);
         let side = if k % 2 == 0 { -1.0 } else { 1.0 };
         let along = r.random_range(-size.x * 0.3..size.x * 0.3);
         let pushed_in = r.random_bool(0.5);

@@ -109,9 +109,9 @@ pub fn table(r: &mut impl Rng) -> (Shape, Vector3<f32>) {
     )
 }
 
-/// A chair facing -y (its back at +y). Some have a hollow back (two posts and a top rail), the
-/// non-convex case that fragments masks.
-pub fn chair(r: &mut impl Rng) -> Shape {
+/// A chair facing -y (its back at +y). With probability `hollow_back` its back is hollow (two
+/// posts and a top rail), the non-convex case that fragments masks.
+pub fn chair(r: &mut impl Rng, hollow_back: f64) -> Shape {
     let (w, d) = (u(r, 0.40, 0.50), u(r, 0.40, 0.50));
     let seat_h = u(r, 0.42, 0.48);
     let t = 0.04;
@@ -123,7 +123,7 @@ pub fn chair(r: &mut impl Rng) -> Shape {
         parts.push(box_on(Vector3::new(leg, leg, seat_h - t), c, 0.0));
     }
     let back_y = d / 2.0 - 0.02;
-    if r.random_bool(0.5) {
+    if r.random_bool(1.0 - hollow_back) {
         parts.push(box_on(Vector3::new(w, 0.03, back_h), (0.0, back_y), seat_h));
     } else {
         for sx in [-1.0, 1.0] {
