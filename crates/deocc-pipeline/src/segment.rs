@@ -274,18 +274,6 @@ impl ConvexitySegmenter {
             })
             .map(|(&k, c)| (k, c.adjacent))
             .collect();
-        if std::env::var("DEOCC_SEG_DEBUG").is_ok() {
-            for (&(a, b), c) in &contacts {
-                if c.adjacent >= 20 {
-                    eprintln!(
-                        "{a}[{:.2},{:.2},{:.2}..{:.2},{:.2},{:.2}] {b}[{:.2},{:.2},{:.2}..{:.2},{:.2},{:.2}] adj {} nearer {:?} touch {} up {:?}",
-                        bbox[a].0.x, bbox[a].0.y, bbox[a].0.z, bbox[a].1.x, bbox[a].1.y, bbox[a].1.z,
-                        bbox[b].0.x, bbox[b].0.y, bbox[b].0.z, bbox[b].1.x, bbox[b].1.y, bbox[b].1.z,
-                        c.adjacent, c.nearer, c.pairs, c.up_facing
-                    );
-                }
-            }
-        }
         candidates.sort_by_key(|&((a, b), pairs)| (std::cmp::Reverse(pairs), a, b));
         // The floor (flat and lowest in view) never merges: anything it touches stands on it, but a
         // partly visible object can meet it at its side.
