@@ -1,6 +1,10 @@
 //! Reading a scene folder: `cameras.json`, `rgb/NAME.png`, `depth/NAME.png` (16-bit mm) and,
 //! optionally, `instances/NAME.png` (u16 instance ids, consistent across views) and `scene.json`
 //! (a benchmark scene's metadata: which instances are room structure).
+//!
+//! Poses are optional: when no frame of `cameras.json` has a `world_from_camera`, the frames are
+//! registered by frame-to-frame point-to-plane ICP ([`crate::poses::FrameToFrameIcp`]) in file
+//! order, which must then be the capture order.
 
 use std::path::{Path, PathBuf};
 
@@ -27,6 +31,8 @@ pub struct SceneInput {
     pub frames: Vec<Frame>,
     /// Instance ids that are room structure (floor, walls): never completed.
     pub structure_ids: Vec<u16>,
+    /// Per-frame ICP figures when the poses were registered here (pose-free input), else empty.
+    pub registration: Vec<crate::poses::FrameRegistration>,
 }
 
 fn invalid(path: &Path, msg: impl Into<String>) -> PipelineError {
@@ -51,10 +57,22 @@ pub fn read_scene(dir: &Path) -> Result<SceneInput, PipelineError> {
         ));
     }
     let cams = read_cameras_json(&cams_path)?;
+    let posed = cams.iter().filter(|c| c.world_from_camera.is_some()).count();
+    if posed != 0 && posed != cams.len() {
+        return Err(invalid(
+            &cams_path,
+            format!(
+                "{posed} of {} frames have a world_from_camera pose: give every frame a pose, or \
+                 none (then the frames are registered by ICP in file order)",
+                cams.len()
+            ),
+        ));
+    }
     let mut frames = Vec::new();
     for fc in cams {
-        let Some(camera) = fc.camera() else {
-            return Err(invalid(&cams_path, format!("frame '{}' has no world_from_camera pose (pose-free input is not supported yet)", fc.name)));
+        let camera = Camera {
+            intrinsics: fc.intrinsics,
+            world_from_camera: fc.world_from_camera.unwrap_or_else(nalgebra::Isometry3::identity),
         };
         let rgb_path = dir.join("rgb").join(format!("{}.png", fc.name));
         let depth_path = dir.join("depth").join(format!("{}.png", fc.name));
@@ -119,10 +137,16 @@ pub fn read_scene(dir: &Path) -> Result<SceneInput, PipelineError> {
     } else {
         Vec::new()
     };
+    let registration = if posed == 0 {
+        crate::poses::FrameToFrameIcp::default().register(&mut frames)?
+    } else {
+        Vec::new()
+    };
     Ok(SceneInput {
         dir: dir.to_path_buf(),
         frames,
         structure_ids,
+        registration,
     })
 }
 
@@ -167,6 +191,7 @@ impl SceneInput {
             dir: PathBuf::from(format!("<scene seed {}>", rendered.scene.seed)),
             frames,
             structure_ids,
+            registration: Vec::new(),
         }
     }
 }

@@ -20,6 +20,7 @@ pub mod complete;
 pub mod input;
 pub mod matching;
 pub mod occlusion;
+pub mod poses;
 pub mod render;
 pub mod segment;
 
@@ -129,6 +130,10 @@ pub struct RunReport {
     pub points_observed: usize,
     pub points_generated: usize,
     pub timings: StageTimings,
+    /// "given" (poses from cameras.json) or "icp" (pose-free input registered frame to frame).
+    pub poses: &'static str,
+    /// Per-frame ICP figures for pose-free input.
+    pub registration: Vec<poses::FrameRegistration>,
 }
 
 pub struct PipelineOutput {
@@ -327,6 +332,12 @@ pub fn run(
         points_observed: observed.len(),
         points_generated,
         timings,
+        poses: if scene.registration.is_empty() {
+            "given"
+        } else {
+            "icp"
+        },
+        registration: scene.registration.clone(),
     };
     Ok(PipelineOutput {
         observed,
