@@ -455,3 +455,39 @@ fn cloud_validation_names_the_problem() {
         .require_non_empty("prediction")
         .is_err());
 }
+
+#[test]
+fn projector_agrees_with_project_world() {
+    let camera = Camera {
+        intrinsics: Intrinsics::new(525.0, 520.0, 319.5, 241.0, 640, 480).unwrap(),
+        world_from_camera: look_at(
+            &Point3::new(1.2, -0.7, 1.4),
+            &Point3::new(0.1, 0.2, 0.6),
+            &Vector3::z(),
+        )
+        .unwrap(),
+    };
+    let projector = camera.projector();
+    let mut rng = rand::rng();
+    for _ in 0..1000 {
+        let p = Point3::new(
+            rng.random_range(-1.0..1.5f32),
+            rng.random_range(-1.0..1.5f32),
+            rng.random_range(0.0..1.5f32),
+        );
+        match (camera.project_world(&p), projector.project(&p)) {
+            // Right at the camera plane the pixel coordinates explode and any rounding shows.
+            (Some((_, z)), _) if z < 0.05 => {}
+            (Some((px, z)), Some((x, y, z2))) => {
+                let tol = |a: f32| 1e-2 + 1e-5 * a.abs();
+                assert!(
+                    (px.x - x).abs() < tol(x) && (px.y - y).abs() < tol(y),
+                    "{px} vs {x} {y}"
+                );
+                assert!((z - z2).abs() < 1e-5);
+            }
+            (None, None) => {}
+            (a, b) => panic!("disagree at {p}: {a:?} vs {b:?}"),
+        }
+    }
+}

@@ -126,18 +126,31 @@ pub fn render_view(
         if obj.category.is_structure() {
             continue;
         }
-        rasterize(
+        let Some([u0, v0, u1, v1]) = rasterize(
             &camera,
             tris,
             tris.object_ranges[k].clone(),
             &|_| obj.instance_id,
             &mut alone,
-        );
-        let mask: Vec<bool> = alone.instance.iter().map(|&i| i != 0).collect();
-        alone.depth_m.fill(0.0);
-        alone.instance.fill(0);
-        alone.triangle.fill(u32::MAX);
-        let amodal_px = mask.iter().filter(|&&m| m).count() as u32;
+        ) else {
+            continue;
+        };
+        // Read and clear only the rectangle the object was drawn in.
+        let (w_us, h_us) = (w as usize, h as usize);
+        let mut mask = vec![false; w_us * h_us];
+        let mut amodal_px = 0u32;
+        for v in v0 as usize..=v1 as usize {
+            let row = v * w_us;
+            for i in row + u0 as usize..=row + u1 as usize {
+                if alone.instance[i] != 0 {
+                    mask[i] = true;
+                    amodal_px += 1;
+                }
+            }
+            alone.depth_m[row + u0 as usize..=row + u1 as usize].fill(0.0);
+            alone.instance[row + u0 as usize..=row + u1 as usize].fill(0);
+            alone.triangle[row + u0 as usize..=row + u1 as usize].fill(u32::MAX);
+        }
         if amodal_px == 0 {
             continue;
         }
@@ -145,9 +158,14 @@ pub fn render_view(
             .get(obj.instance_id as usize)
             .copied()
             .unwrap_or(0);
-        let truncated = (0..w as usize).any(|u| mask[u] || mask[(h as usize - 1) * w as usize + u])
-            || (0..h as usize)
-                .any(|v| mask[v * w as usize] || mask[v * w as usize + w as usize - 1]);
+        // Touching the image border, within the drawn rectangle.
+        let truncated = (u0..=u1).any(|u| {
+            let u = u as usize;
+            mask[u] || mask[(h_us - 1) * w_us + u]
+        }) || (v0..=v1).any(|v| {
+            let v = v as usize;
+            mask[v * w_us] || mask[v * w_us + w_us - 1]
+        });
         visibility.push(Visibility {
             view,
             instance_id: obj.instance_id,

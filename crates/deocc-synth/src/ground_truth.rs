@@ -1,7 +1,7 @@
 //! Dense ground truth: points sampled uniformly on every surface, with instance id, normal, and
 //! whether any view of the scene sees them.
 
-use deocc_geometry::camera::Camera;
+use deocc_geometry::camera::{Camera, Projector};
 use deocc_geometry::PointCloud;
 use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
@@ -59,10 +59,15 @@ pub fn sample_surfaces(
 /// Is `p` (on object `id`) visible in `frame` rendered from `camera`? It must project inside the
 /// image onto a pixel showing the same object at the same depth (within 1 cm + 1% of depth).
 pub fn visible_in(p: &Point3<f32>, id: u16, camera: &Camera, frame: &Frame) -> bool {
-    let Some((px, z)) = camera.project_world(p) else {
+    visible_through(p, id, &camera.projector(), frame)
+}
+
+#[inline]
+fn visible_through(p: &Point3<f32>, id: u16, projector: &Projector, frame: &Frame) -> bool {
+    let Some((x, y, z)) = projector.project(p) else {
         return false;
     };
-    let (u, v) = (px.x.floor(), px.y.floor());
+    let (u, v) = (x.floor(), y.floor());
     if u < 0.0 || v < 0.0 || u >= frame.width as f32 || v >= frame.height as f32 {
         return false;
     }
@@ -73,6 +78,7 @@ pub fn visible_in(p: &Point3<f32>, id: u16, camera: &Camera, frame: &Frame) -> b
 /// Marks the points any of the (noise-free) frames sees.
 pub fn seen_flags(cloud: &PointCloud, cameras: &[Camera], frames: &[Frame]) -> Vec<bool> {
     let ids = cloud.instance.as_deref().unwrap_or(&[]);
+    let projectors: Vec<Projector> = cameras.iter().map(Camera::projector).collect();
     use rayon::prelude::*;
     cloud
         .positions
@@ -80,10 +86,10 @@ pub fn seen_flags(cloud: &PointCloud, cameras: &[Camera], frames: &[Frame]) -> V
         .enumerate()
         .map(|(i, p)| {
             let id = ids.get(i).copied().unwrap_or(0) as u16;
-            cameras
+            projectors
                 .iter()
                 .zip(frames)
-                .any(|(c, f)| visible_in(p, id, c, f))
+                .any(|(c, f)| visible_through(p, id, c, f))
         })
         .collect()
 }

@@ -73,14 +73,20 @@ impl SceneTriangles {
     }
 }
 
-/// Rasterises the triangles in `range` (indices into `tris`) into `frame`.
+/// Pixel rectangle `[u0, v0, u1, v1]`, inclusive.
+pub type PixelBox = [u32; 4];
+
+/// Rasterises the triangles in `range` (indices into `tris`) into `frame`. Returns a rectangle
+/// holding every pixel written (None if none was), so that a caller rendering one object can
+/// read and clear just that part of the frame.
 pub fn rasterize(
     camera: &Camera,
     tris: &SceneTriangles,
     range: std::ops::Range<usize>,
     instance_of: &dyn Fn(usize) -> u16,
     frame: &mut Frame,
-) {
+) -> Option<PixelBox> {
+    let mut bounds: Option<PixelBox> = None;
     let k = &camera.intrinsics;
     let cam_from_world = camera.world_from_camera.inverse();
     let (w, h) = (frame.width as i32, frame.height as i32);
@@ -114,16 +120,22 @@ pub fn rasterize(
             .collect();
         let inst = instance_of(ti);
         for j in 1..screen.len().saturating_sub(1) {
-            raster_triangle(
+            if let Some(b) = raster_triangle(
                 [screen[0], screen[j], screen[j + 1]],
                 w,
                 h,
                 ti as u32,
                 inst,
                 frame,
-            );
+            ) {
+                bounds = Some(match bounds {
+                    None => b,
+                    Some(a) => [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])],
+                });
+            }
         }
     }
+    bounds
 }
 
 #[inline]
@@ -134,7 +146,7 @@ fn raster_triangle(
     tri: u32,
     inst: u16,
     frame: &mut Frame,
-) {
+) -> Option<PixelBox> {
     let min_x = s.iter().map(|v| v.0).fold(f32::INFINITY, f32::min);
     let max_x = s.iter().map(|v| v.0).fold(f32::NEG_INFINITY, f32::max);
     let min_y = s.iter().map(|v| v.1).fold(f32::INFINITY, f32::min);
@@ -144,11 +156,11 @@ fn raster_triangle(
     let v0 = ((min_y - 0.5).ceil() as i32).max(0);
     let v1 = ((max_y - 0.5).floor() as i32).min(h - 1);
     if u0 > u1 || v0 > v1 {
-        return;
+        return None;
     }
     let area = (s[1].0 - s[0].0) * (s[2].1 - s[0].1) - (s[1].1 - s[0].1) * (s[2].0 - s[0].0);
     if area.abs() < 1e-12 {
-        return;
+        return None;
     }
     let inv_area = 1.0 / area;
     let edge = |a: (f32, f32, f32), b: (f32, f32, f32), x: f32, y: f32| {
@@ -176,6 +188,7 @@ fn raster_triangle(
             }
         }
     }
+    Some([u0 as u32, v0 as u32, u1 as u32, v1 as u32])
 }
 
 /// Renders the whole scene.
