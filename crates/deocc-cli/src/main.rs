@@ -31,7 +31,11 @@ fn tune_allocator() {
     const MI_OPTION_PURGE_DELAY: std::os::raw::c_int = 15;
     for (name, option, value) in [
         ("MIMALLOC_PURGE_DELAY", MI_OPTION_PURGE_DELAY, -1),
-        ("MIMALLOC_ALLOW_LARGE_OS_PAGES", MI_OPTION_ALLOW_LARGE_OS_PAGES, 0),
+        (
+            "MIMALLOC_ALLOW_LARGE_OS_PAGES",
+            MI_OPTION_ALLOW_LARGE_OS_PAGES,
+            0,
+        ),
     ] {
         if std::env::var_os(name).is_none() {
             // SAFETY: plain option setter of the linked allocator; valid option index and value.

@@ -127,7 +127,8 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> 
 
 /// Adds `generated` points to `observed` without duplicating surfaces: generated points are
 /// voxel-downsampled, and any that falls into a voxel already holding an observed point is dropped
-/// (the sensor wins). Observed points are kept as they are; the result carries the generated flag.
+/// (the sensor wins). Observed points are kept as they are; the result carries the generated flag
+/// (0 observed, 1 generated, or the generated points' own code if above 1).
 pub fn fuse_generated(
     observed: &PointCloud,
     generated: &PointCloud,
@@ -148,7 +149,11 @@ pub fn fuse_generated(
         .map(|p| voxel_key(p, &origin, voxel))
         .collect();
     let mut gen = generated.clone();
-    gen.generated = Some(vec![1; gen.len()]);
+    // Provenance codes above 1 (what generated a point) are kept; anything else becomes 1.
+    gen.generated = Some(match &generated.generated {
+        Some(g) => g.iter().map(|&x| x.max(1)).collect(),
+        None => vec![1; gen.len()],
+    });
     let gen = voxel_downsample(&gen, voxel_m)?;
     let fresh = gen.filter(|i| !occupied.contains(&voxel_key(&gen.positions[i], &origin, voxel)));
     out.append(&fresh);

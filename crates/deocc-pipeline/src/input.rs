@@ -57,7 +57,10 @@ pub fn read_scene(dir: &Path) -> Result<SceneInput, PipelineError> {
         ));
     }
     let cams = read_cameras_json(&cams_path)?;
-    let posed = cams.iter().filter(|c| c.world_from_camera.is_some()).count();
+    let posed = cams
+        .iter()
+        .filter(|c| c.world_from_camera.is_some())
+        .count();
     if posed != 0 && posed != cams.len() {
         return Err(invalid(
             &cams_path,
@@ -72,7 +75,9 @@ pub fn read_scene(dir: &Path) -> Result<SceneInput, PipelineError> {
     for fc in cams {
         let camera = Camera {
             intrinsics: fc.intrinsics,
-            world_from_camera: fc.world_from_camera.unwrap_or_else(nalgebra::Isometry3::identity),
+            world_from_camera: fc
+                .world_from_camera
+                .unwrap_or_else(nalgebra::Isometry3::identity),
         };
         let rgb_path = dir.join("rgb").join(format!("{}.png", fc.name));
         let depth_path = dir.join("depth").join(format!("{}.png", fc.name));

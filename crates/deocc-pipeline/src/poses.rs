@@ -73,10 +73,8 @@ fn camera_cloud(
 /// (floor, table tops) within 60 degrees of the camera's up (-y). Returns up in the camera frame.
 pub fn estimate_up(normals: &[Vector3<f32>]) -> Vector3<f32> {
     let camera_up = -Vector3::y();
-    let candidates: Vec<&Vector3<f32>> = normals
-        .iter()
-        .filter(|n| n.dot(&camera_up) > 0.5)
-        .collect();
+    let candidates: Vec<&Vector3<f32>> =
+        normals.iter().filter(|n| n.dot(&camera_up) > 0.5).collect();
     if candidates.is_empty() {
         return camera_up;
     }
@@ -107,8 +105,9 @@ impl FrameToFrameIcp {
         let finest = self.levels.last().map_or(0.01, |l| l.0);
         let (_, normals0) = camera_cloud(first, finest)?;
         let up = estimate_up(&normals0);
-        let level = Rotation3::rotation_between(&up, &Vector3::z())
-            .unwrap_or_else(|| Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI));
+        let level = Rotation3::rotation_between(&up, &Vector3::z()).unwrap_or_else(|| {
+            Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI)
+        });
         let mut world_from_camera = vec![Isometry3::from_parts(
             Default::default(),
             UnitQuaternion::from_rotation_matrix(&level),

@@ -102,3 +102,47 @@ fn partly_posed_input_is_refused() {
     let e = read_scene(dir.path()).err().unwrap().to_string();
     assert!(e.contains("cameras.json") && e.contains("3 of 4"), "{e}");
 }
+
+/// The plane fill puts points where the ground truth has hidden surface: nearly all of them
+/// within 2 cm of a ground-truth point no view sees, and none where a view sees free space.
+#[test]
+fn plane_fill_lands_on_hidden_ground_truth() {
+    use deocc_pipeline::input::SceneInput;
+    use deocc_pipeline::planes::{complete_planes, PlaneOptions, PLANE_FILL};
+    let cfg = SceneConfig {
+        gt_points_per_m2: 10_000.0,
+        ..config()
+    };
+    let rendered = render_full_scene(&cfg, 5).unwrap();
+    let scene = SceneInput::from_rendered(&rendered);
+    let fill = complete_planes(&scene, &PlaneOptions::default());
+    assert!(fill.len() > 500, "only {} points filled", fill.len());
+    assert!(fill
+        .generated
+        .as_deref()
+        .unwrap()
+        .iter()
+        .all(|&g| g == PLANE_FILL));
+    let gt = &rendered.ground_truth;
+    let hidden: Vec<_> = gt
+        .cloud
+        .positions
+        .iter()
+        .zip(&gt.seen)
+        .filter(|(_, &s)| !s)
+        .map(|(p, _)| *p)
+        .collect();
+    let share_near = |points: &[nalgebra::Point3<f32>]| {
+        let index = deocc_geometry::KdIndex::build(points).unwrap();
+        let near = fill
+            .positions
+            .iter()
+            .filter(|p| index.nearest(p).distance_sq < 0.015 * 0.015)
+            .count();
+        near as f64 / fill.len() as f64
+    };
+    let on_surface = share_near(&gt.cloud.positions);
+    assert!(on_surface > 0.95, "{on_surface:.3} of the filled points lie on a surface");
+    let on_hidden = share_near(&hidden);
+    assert!(on_hidden > 0.8, "{on_hidden:.3} of the filled points lie on hidden surface");
+}

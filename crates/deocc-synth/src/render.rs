@@ -130,7 +130,12 @@ pub fn rasterize(
             ) {
                 bounds = Some(match bounds {
                     None => b,
-                    Some(a) => [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])],
+                    Some(a) => [
+                        a[0].min(b[0]),
+                        a[1].min(b[1]),
+                        a[2].max(b[2]),
+                        a[3].max(b[3]),
+                    ],
                 });
             }
         }

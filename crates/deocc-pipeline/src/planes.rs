@@ -1,0 +1,303 @@
+//! Completing the support planes (floor, walls, large flat tops) behind what stands in front of
+//! them. Objects are completed by GL-DoT; the largest hidden surfaces of a scene are the floor
+//! under a table and the walls behind furniture, and for those a plane is the right prior.
+//!
+//! Each large planar instance is fitted with a plane; instances on the same plane (a floor split
+//! by a table into several segments) are filled together. Fill candidates are the cells of a grid
+//! on the plane inside the convex hull of the observed plane points that no observed point covers.
+//! A candidate is kept only if the views agree that it is hidden: every view with a measurement
+//! where it projects sees something in front of it (none sees it, none sees through it). Points so
+//! made carry provenance code [`PLANE_FILL`] in the cloud's `generated` property.
+
+use std::collections::{BTreeMap, HashSet};
+
+use deocc_geometry::camera::Projector;
+use deocc_geometry::normals::smallest_eigenvector;
+use deocc_geometry::PointCloud;
+use nalgebra::{Matrix3, Point2, Point3, Vector3};
+
+use crate::input::SceneInput;
+
+/// `generated` code of points filled in on planes (GL-DoT's points are 1).
+pub const PLANE_FILL: u8 = 2;
+
+#[derive(Debug, Clone)]
+pub struct PlaneOptions {
+    /// Grid spacing of the filled points, metres.
+    pub spacing_m: f32,
+    /// Planar: this fraction of an instance's points within `inlier_m` of its plane (the plane is
+    /// refitted on its inliers, so a table top with its legs counts, the top filled).
+    pub inlier_m: f32,
+    pub min_inlier_fraction: f32,
+    /// Only planes at least this large (box diagonal of their points, metres) are filled.
+    pub min_extent_m: f32,
+    /// Pixels sampled per view and instance: every `stride`-th row and column.
+    pub stride: usize,
+}
+
+impl Default for PlaneOptions {
+    fn default() -> Self {
+        Self {
+            spacing_m: 0.01,
+            inlier_m: 0.015,
+            min_inlier_fraction: 0.6,
+            min_extent_m: 0.8,
+            stride: 3,
+        }
+    }
+}
+
+struct Plane {
+    instance_id: u16,
+    normal: Vector3<f32>,
+    offset: f32, // normal . p = offset
+    points: Vec<Point3<f32>>,
+    color: [u8; 3],
+}
+
+/// Planes of the scene's large planar instances.
+fn find_planes(scene: &SceneInput, opts: &PlaneOptions) -> Vec<Plane> {
+    let mut per: BTreeMap<u16, (Vec<Point3<f32>>, [u64; 3])> = BTreeMap::new();
+    for f in &scene.frames {
+        let Some(map) = &f.instances else { continue };
+        let (w, h) = (map.width as usize, map.height as usize);
+        let rgb = f.rgb.as_raw();
+        for v in (0..h).step_by(opts.stride.max(1)) {
+            for u in (0..w).step_by(opts.stride.max(1)) {
+                let i = v * w + u;
+                let (id, d) = (map.ids[i], f.depth.data()[i]);
+                if id == 0 || d <= 0.0 {
+                    continue;
+                }
+                let e = per.entry(id).or_default();
+                e.0.push(f.camera.unproject_pixel(u as u32, v as u32, d));
+                for c in 0..3 {
+                    e.1[c] += rgb[3 * i + c] as u64;
+                }
+            }
+        }
+    }
+    per.into_iter()
+        .filter_map(|(id, (points, color_sum))| {
+            if points.len() < 50 {
+                return None;
+            }
+            let (lo, hi) = points
+                .iter()
+                .fold((points[0], points[0]), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
+            if (hi - lo).norm() < opts.min_extent_m {
+                return None;
+            }
+            // PCA plane, refitted on its inliers: a table's top wins over its legs.
+            let mut inliers: Vec<Point3<f32>> = points.clone();
+            let (mut normal, mut offset) = (Vector3::z(), 0.0);
+            for band in [0.10, 0.04, opts.inlier_m] {
+                let c = deocc_geometry::cloud::centroid(&inliers)?;
+                let mut cov = Matrix3::<f64>::zeros();
+                for p in &inliers {
+                    let d = (p - c).cast::<f64>();
+                    cov += d * d.transpose();
+                }
+                normal = smallest_eigenvector(&cov)
+                    .cast::<f32>()
+                    .try_normalize(1e-9)?;
+                offset = normal.dot(&c.coords);
+                inliers = points
+                    .iter()
+                    .filter(|p| (normal.dot(&p.coords) - offset).abs() <= band)
+                    .copied()
+                    .collect();
+                if inliers.len() < 50 {
+                    return None;
+                }
+            }
+            if (inliers.len() as f32) < opts.min_inlier_fraction * points.len() as f32 {
+                return None;
+            }
+            let (lo, hi) = inliers
+                .iter()
+                .fold((inliers[0], inliers[0]), |(lo, hi), p| {
+                    (lo.inf(p), hi.sup(p))
+                });
+            if (hi - lo).norm() < opts.min_extent_m {
+                return None;
+            }
+            let n = points.len() as u64;
+            Some(Plane {
+                instance_id: id,
+                normal,
+                offset,
+                color: color_sum.map(|s| (s / n) as u8),
+                points: inliers,
+            })
+        })
+        .collect()
+}
+
+/// Convex hull (counter-clockwise, Andrew's monotone chain) of 2-D points.
+fn convex_hull(mut pts: Vec<Point2<f32>>) -> Vec<Point2<f32>> {
+    pts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
+    pts.dedup();
+    if pts.len() < 3 {
+        return pts;
+    }
+    let cross = |o: &Point2<f32>, a: &Point2<f32>, b: &Point2<f32>| {
+        (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x)
+    };
+    let mut hull: Vec<Point2<f32>> = Vec::with_capacity(2 * pts.len());
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &Point2<f32>>> = if pass == 0 {
+            Box::new(pts.iter())
+        } else {
+            Box::new(pts.iter().rev())
+        };
+        for p in iter {
+            while hull.len() >= start + 2
+                && cross(&hull[hull.len() - 2], &hull[hull.len() - 1], p) <= 0.0
+            {
+                hull.pop();
+            }
+            hull.push(*p);
+        }
+        hull.pop();
+    }
+    hull
+}
+
+fn inside(hull: &[Point2<f32>], p: &Point2<f32>) -> bool {
+    hull.len() >= 3
+        && (0..hull.len()).all(|i| {
+            let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
+            (b.x - a.x) * (p.y - a.y) - (b.y - a.y) * (p.x - a.x) >= 0.0
+        })
+}
+
+/// Points filling the hidden parts of the scene's support planes (see the module docs).
+pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
+    let planes = find_planes(scene, opts);
+    // Group coplanar instances (normals within 5 degrees, offsets within 3 cm).
+    let mut group: Vec<usize> = (0..planes.len()).collect();
+    for i in 0..planes.len() {
+        for j in 0..i {
+            let same = planes[i].normal.dot(&planes[j].normal).abs() > 5f32.to_radians().cos()
+                && (planes[i].offset
+                    - planes[j].offset * planes[i].normal.dot(&planes[j].normal).signum())
+                .abs()
+                    < 0.03;
+            if same {
+                group[i] = group[j];
+                break;
+            }
+        }
+    }
+    let projectors: Vec<Projector> = scene.frames.iter().map(|f| f.camera.projector()).collect();
+    let mut out = PointCloud::default();
+    let (mut positions, mut colors, mut ids) = (Vec::new(), Vec::new(), Vec::new());
+    let groups: std::collections::BTreeSet<usize> = group.iter().copied().collect();
+    for g in groups {
+        let members: Vec<&Plane> = (0..planes.len())
+            .filter(|&i| group[i] == g)
+            .map(|i| &planes[i])
+            .collect();
+        let first = members[0];
+        let normal = first.normal;
+        let offset = first.offset;
+        // In-plane basis.
+        let helper = if normal.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        let e1 = normal.cross(&helper).normalize();
+        let e2 = normal.cross(&e1);
+        let origin = Point3::from(normal * offset);
+        let s = opts.spacing_m;
+        let cell = |p: &Point3<f32>| {
+            let d = p - origin;
+            (
+                (d.dot(&e1) / s).floor() as i32,
+                (d.dot(&e2) / s).floor() as i32,
+            )
+        };
+        let mut occupied: HashSet<(i32, i32)> = HashSet::new();
+        let mut flat: Vec<Point2<f32>> = Vec::new();
+        for m in &members {
+            for p in &m.points {
+                if (normal.dot(&p.coords) - offset).abs() > opts.inlier_m {
+                    continue;
+                }
+                let (a, b) = cell(p);
+                // Observed cells and their neighbours (the sampling stride leaves gaps).
+                for da in -2..=2 {
+                    for db in -2..=2 {
+                        occupied.insert((a + da, b + db));
+                    }
+                }
+                let d = p - origin;
+                flat.push(Point2::new(d.dot(&e1), d.dot(&e2)));
+            }
+        }
+        let hull = convex_hull(flat);
+        if hull.len() < 3 {
+            continue;
+        }
+        let (lo, hi) = hull.iter().fold(
+            (
+                Point2::new(f32::MAX, f32::MAX),
+                Point2::new(f32::MIN, f32::MIN),
+            ),
+            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+        );
+        let (a0, a1) = ((lo.x / s).floor() as i32, (hi.x / s).ceil() as i32);
+        let (b0, b1) = ((lo.y / s).floor() as i32, (hi.y / s).ceil() as i32);
+        for a in a0..=a1 {
+            for b in b0..=b1 {
+                if occupied.contains(&(a, b)) {
+                    continue;
+                }
+                let q = Point2::new((a as f32 + 0.5) * s, (b as f32 + 0.5) * s);
+                if !inside(&hull, &q) {
+                    continue;
+                }
+                let p = origin + e1 * q.x + e2 * q.y;
+                if hidden_in_views(&p, scene, &projectors) {
+                    positions.push(p);
+                    colors.push(first.color);
+                    ids.push(first.instance_id as u32);
+                }
+            }
+        }
+    }
+    out.generated = Some(vec![PLANE_FILL; positions.len()]);
+    out.positions = positions;
+    out.colors = Some(colors);
+    out.instance = Some(ids);
+    out
+}
+
+/// Every view that has a measurement where `p` projects sees something in front of it.
+fn hidden_in_views(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -> bool {
+    let mut hidden = false;
+    for (f, proj) in scene.frames.iter().zip(projectors) {
+        let Some((x, y, z)) = proj.project(p) else {
+            continue;
+        };
+        let (w, h) = (f.depth.width() as f32, f.depth.height() as f32);
+        if x < 0.0 || y < 0.0 || x >= w || y >= h {
+            continue;
+        }
+        let d = f.depth.data()[y as usize * w as usize + x as usize];
+        if d <= 0.0 {
+            continue;
+        }
+        let tol = 0.02 + 0.01 * z;
+        if d < z - tol {
+            hidden = true;
+        } else {
+            // The sensor saw it (observed already) or saw through it (free space).
+            return false;
+        }
+    }
+    hidden
+}
