@@ -53,11 +53,11 @@ impl Default for FrameToFrameIcp {
     }
 }
 
+/// Points with their unit normals.
+type OrientedPoints = (Vec<Point3<f32>>, Vec<Vector3<f32>>);
+
 /// The frame's points (camera frame) at a voxel size, with normals facing the camera.
-fn camera_cloud(
-    frame: &Frame,
-    voxel_m: f64,
-) -> Result<(Vec<Point3<f32>>, Vec<Vector3<f32>>), PipelineError> {
+fn camera_cloud(frame: &Frame, voxel_m: f64) -> Result<OrientedPoints, PipelineError> {
     let camera = Camera {
         intrinsics: frame.camera.intrinsics,
         world_from_camera: Isometry3::identity(),

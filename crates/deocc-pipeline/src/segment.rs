@@ -237,8 +237,8 @@ impl ConvexitySegmenter {
                     c.pairs += 1;
                     c.height_sum += 0.5 * (level * (camera.world_from_camera * pts[i])).z
                         + 0.5 * (level * (camera.world_from_camera * pts[j])).z;
-                    for s in 0..2 {
-                        c.up_facing[s] += ups[s] as usize;
+                    for (count, up) in c.up_facing.iter_mut().zip(ups) {
+                        *count += up as usize;
                     }
                 }
             }

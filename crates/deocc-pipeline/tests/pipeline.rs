@@ -142,7 +142,13 @@ fn plane_fill_lands_on_hidden_ground_truth() {
         near as f64 / fill.len() as f64
     };
     let on_surface = share_near(&gt.cloud.positions);
-    assert!(on_surface > 0.95, "{on_surface:.3} of the filled points lie on a surface");
+    assert!(
+        on_surface > 0.95,
+        "{on_surface:.3} of the filled points lie on a surface"
+    );
     let on_hidden = share_near(&hidden);
-    assert!(on_hidden > 0.8, "{on_hidden:.3} of the filled points lie on hidden surface");
+    assert!(
+        on_hidden > 0.8,
+        "{on_hidden:.3} of the filled points lie on hidden surface"
+    );
 }

@@ -140,16 +140,19 @@ pub fn render_view(
         let mut mask = vec![false; w_us * h_us];
         let mut amodal_px = 0u32;
         for v in v0 as usize..=v1 as usize {
-            let row = v * w_us;
-            for i in row + u0 as usize..=row + u1 as usize {
-                if alone.instance[i] != 0 {
-                    mask[i] = true;
+            let span = v * w_us + u0 as usize..=v * w_us + u1 as usize;
+            for (m, &id) in mask[span.clone()]
+                .iter_mut()
+                .zip(&alone.instance[span.clone()])
+            {
+                if id != 0 {
+                    *m = true;
                     amodal_px += 1;
                 }
             }
-            alone.depth_m[row + u0 as usize..=row + u1 as usize].fill(0.0);
-            alone.instance[row + u0 as usize..=row + u1 as usize].fill(0);
-            alone.triangle[row + u0 as usize..=row + u1 as usize].fill(u32::MAX);
+            alone.depth_m[span.clone()].fill(0.0);
+            alone.instance[span.clone()].fill(0);
+            alone.triangle[span].fill(u32::MAX);
         }
         if amodal_px == 0 {
             continue;
