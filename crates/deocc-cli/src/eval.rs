@@ -193,7 +193,7 @@ pub struct ReconstructionArgs {
     #[arg(long, default_value = "weights/gldot-small")]
     weights: PathBuf,
     /// Number of bench-v1 scenes (the first N of its 50).
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 50)]
     scenes: usize,
     #[arg(long, default_value_t = 4)]
     steps: usize,
