@@ -31,20 +31,20 @@ fn scene_folder_errors_name_the_file() {
     assert!(e.contains("000001.png"), "{e}");
 }
 
-/// Pose-free input: frame-to-frame point-to-plane ICP recovers the camera motion of a robot-head
-/// sweep (5 degrees and ~13 cm between frames) to within a degree and two centimetres per frame,
-/// and the recovered world has gravity along -z.
+/// Pose-free input: frame-to-frame point-to-plane ICP recovers the camera motion of bench-v1's
+/// robot-head sweep (10 views, 10 degrees and ~25 cm between frames) to within half a degree and
+/// a centimetre per frame (measured: under 0.01 degree and 0.5 mm), and the recovered world has
+/// gravity along -z.
 #[test]
 fn frame_to_frame_icp_recovers_the_camera_path() {
     use deocc_pipeline::input::SceneInput;
     use deocc_pipeline::poses::FrameToFrameIcp;
     let cfg = SceneConfig {
-        views: 19,
+        views: 10,
         ..config()
     };
     let rendered = render_full_scene(&cfg, 11).unwrap();
     let mut scene = SceneInput::from_rendered(&rendered);
-    scene.frames.truncate(5);
     let truth: Vec<_> = scene
         .frames
         .iter()
@@ -56,8 +56,8 @@ fn frame_to_frame_icp_recovers_the_camera_path() {
     let reports = FrameToFrameIcp::default()
         .register(&mut scene.frames)
         .unwrap();
-    assert_eq!(reports.len(), 5);
-    for k in 1..5 {
+    assert_eq!(reports.len(), 10);
+    for k in 1..10 {
         let est = scene.frames[k - 1].camera.world_from_camera.inverse()
             * scene.frames[k].camera.world_from_camera;
         let gt = truth[k - 1].inverse() * truth[k];
@@ -65,7 +65,7 @@ fn frame_to_frame_icp_recovers_the_camera_path() {
         let angle = err.rotation.angle().to_degrees();
         let shift = err.translation.vector.norm();
         assert!(
-            angle < 1.0 && shift < 0.02,
+            angle < 0.5 && shift < 0.01,
             "frame {k}: {angle:.2} deg, {shift:.3} m off (fitness {:.2})",
             reports[k].fitness
         );
