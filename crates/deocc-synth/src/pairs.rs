@@ -154,19 +154,21 @@ fn projected_box(camera: &Camera, scene: &Scene, object: usize) -> Option<(f32, 
     Some(b)
 }
 
-/// Box (u0, v0, u1, v1) of an instance's visible pixels, pixel edges included.
-fn visible_box(frame: &Frame, id: u16) -> Option<(f32, f32, f32, f32)> {
+/// Boxes (u0, v0, u1, v1) of every instance's visible pixels, pixel edges included, indexed by
+/// instance id; one pass over the frame.
+fn visible_boxes(frame: &Frame) -> Vec<Option<(f32, f32, f32, f32)>> {
     let w = frame.width as usize;
-    let mut b = (usize::MAX, usize::MAX, 0usize, 0usize);
-    let mut any = false;
+    let max_id = frame.instance.iter().copied().max().unwrap_or(0) as usize;
+    let mut boxes = vec![(usize::MAX, usize::MAX, 0usize, 0usize); max_id + 1];
     for (i, &inst) in frame.instance.iter().enumerate() {
-        if inst == id {
-            let (u, v) = (i % w, i / w);
-            b = (b.0.min(u), b.1.min(v), b.2.max(u + 1), b.3.max(v + 1));
-            any = true;
-        }
+        let (u, v) = (i % w, i / w);
+        let b = &mut boxes[inst as usize];
+        *b = (b.0.min(u), b.1.min(v), b.2.max(u + 1), b.3.max(v + 1));
     }
-    any.then_some((b.0 as f32, b.1 as f32, b.2 as f32, b.3 as f32))
+    boxes
+        .into_iter()
+        .map(|b| (b.2 > 0).then_some((b.0 as f32, b.1 as f32, b.2 as f32, b.3 as f32)))
+        .collect()
 }
 
 fn median(mut v: Vec<f32>) -> f32 {
@@ -187,6 +189,7 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
     let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(scene.seed ^ 0x7061_6972);
     for camera in &scene.cameras {
         let full_view = crate::render::render_scene(camera, scene, &tris);
+        let boxes = visible_boxes(&full_view);
         let (w, h) = (
             camera.intrinsics.width() as f32,
             camera.intrinsics.height() as f32,
@@ -205,7 +208,8 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             // The crop is placed around the VISIBLE box, as the pipeline must do (it does not know
             // the amodal box), with a random scale and jitter so the model sees the range of
             // framings the pipeline produces.
-            let Some((vu0, vv0, vu1, vv1)) = visible_box(&full_view, obj.instance_id) else {
+            let Some((vu0, vv0, vu1, vv1)) = boxes.get(obj.instance_id as usize).copied().flatten()
+            else {
                 continue;
             };
             let vis_side = (vu1 - vu0).max(vv1 - vv0);
