@@ -292,7 +292,9 @@ fn tiny_model_overfits_a_few_pairs() {
         trainer.step(&small).unwrap();
     }
     let after = eval(&trainer);
-    assert!(after < 0.5 * before, "loss {before} -> {after}");
+    // The residual target is mostly zero, so the loss starts near the noise's variance (~1) and
+    // falls to ~0.77 here (the old full target started twice as high and halved).
+    assert!(after < 0.75 * before, "loss {before} -> {after}");
 }
 
 #[test]
