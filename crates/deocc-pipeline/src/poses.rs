@@ -102,9 +102,22 @@ impl FrameToFrameIcp {
         let Some(first) = frames.first() else {
             return Ok(Vec::new());
         };
-        let finest = self.levels.last().map_or(0.01, |l| l.0);
-        let (_, normals0) = camera_cloud(first, finest)?;
-        let up = estimate_up(&normals0);
+        if self.levels.is_empty() {
+            return Err(PipelineError::Input {
+                path: Default::default(),
+                msg: "frame-to-frame ICP needs at least one level".into(),
+            });
+        }
+        // Each frame's clouds at every level, built once: a frame is the source of one pair and
+        // the target of the next.
+        let clouds = |f: &Frame| -> Result<Vec<OrientedPoints>, PipelineError> {
+            self.levels
+                .iter()
+                .map(|&(voxel, _)| camera_cloud(f, voxel))
+                .collect()
+        };
+        let mut previous = clouds(first)?;
+        let up = estimate_up(&previous[previous.len() - 1].1);
         let level = Rotation3::rotation_between(&up, &Vector3::z()).unwrap_or_else(|| {
             Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI)
         });
@@ -120,13 +133,14 @@ impl FrameToFrameIcp {
         let mut velocity = Isometry3::<f64>::identity(); // previous from current, last pair
         for k in 1..frames.len() {
             let mut prev_from_current = velocity;
+            let current = clouds(&frames[k])?;
             let mut last = None;
-            for &(voxel, max_corr) in &self.levels {
-                let (target_pts, target_normals) = camera_cloud(&frames[k - 1], voxel)?;
-                let (source_pts, _) = camera_cloud(&frames[k], voxel)?;
-                let target = IcpTarget::new(&target_pts, Some(&target_normals))?;
+            for (((target_pts, target_normals), (source_pts, _)), &(_, max_corr)) in
+                previous.iter().zip(&current).zip(&self.levels)
+            {
+                let target = IcpTarget::new(target_pts, Some(target_normals))?;
                 let r = icp(
-                    &source_pts,
+                    source_pts,
                     &target,
                     &prev_from_current,
                     &IcpOptions {
@@ -139,10 +153,10 @@ impl FrameToFrameIcp {
                 prev_from_current = r.target_from_source;
                 last = Some(r);
             }
-            let r = last.ok_or_else(|| PipelineError::Input {
-                path: Default::default(),
-                msg: "frame-to-frame ICP needs at least one level".into(),
-            })?;
+            previous = current;
+            let Some(r) = last else {
+                unreachable!("levels checked non-empty above")
+            };
             velocity = prev_from_current;
             let pose = world_from_camera[k - 1] * prev_from_current.cast::<f32>();
             world_from_camera.push(pose);
