@@ -191,9 +191,11 @@ fn scenes(a: ScenesArgs) -> Result<()> {
     };
     create_dir(&a.out)?;
     let pb = bar(p.seeds.len() as u64, "scenes");
+    // Scenes in parallel as well as the views within a scene: the per-scene steps that are not
+    // parallel (file writes, the ground-truth PLY) then overlap with another scene's rendering.
     let infos: Vec<SceneInfo> = p
         .seeds
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(i, &seed)| {
             let rendered = render_full_scene(&p.config, seed)?;

@@ -39,6 +39,10 @@ pub struct TrainArgs {
     /// instead of a random initialisation.
     #[arg(long)]
     init: Option<PathBuf>,
+    /// Loss weight per target channel: R,G,B,mask,near depth,far depth (normalised to mean 1).
+    /// Default: uniform.
+    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    channel_loss_weights: Vec<f32>,
     /// Use only the first N pairs (for quick experiments).
     #[arg(long)]
     limit_pairs: Option<usize>,
@@ -77,6 +81,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         learning_rate: a.learning_rate,
         timestep_shift: a.timestep_shift,
         checkpoint_every: a.checkpoint_every.max(1),
+        channel_loss_weights: a.channel_loss_weights,
         ..TrainConfig::default()
     };
     let device = candle_core::Device::Cpu;

@@ -234,4 +234,13 @@ impl Projector {
         let z = dot(2);
         (z > 0.0).then(|| (dot(0) / z, dot(1) / z, z))
     }
+
+    /// Homogeneous image coordinates `(z x, z y, z)` of a world point, with z its camera depth
+    /// (any sign). Linear in the point, so a rasteriser can clip edges against a near plane in
+    /// this space before dividing.
+    #[inline]
+    pub fn homogeneous(&self, p: &Point3<f32>) -> [f32; 3] {
+        let r = &self.rows;
+        std::array::from_fn(|i| r[i][0] * p.x + r[i][1] * p.y + r[i][2] * p.z + r[i][3])
+    }
 }

@@ -1,5 +1,9 @@
 //! Writes that never leave a half-written file: data goes to a temporary file beside the target,
 //! which is renamed over it only once everything was written and flushed.
+//!
+//! No fsync: the guarantee is against errors and a killed process (a reader sees the old file or
+//! the whole new one), not against power loss. A scene is ~150 files, and an fsync per file made
+//! writing them slower than rendering them (0.23 s of 0.48 s per bench-v1 scene).
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -28,7 +32,7 @@ pub fn write_atomic(
         let mut w = BufWriter::with_capacity(1 << 20, file);
         write(&mut w)?;
         w.flush()?;
-        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        drop(w.into_inner().map_err(|e| e.into_error())?);
         std::fs::rename(&tmp, path)
     })();
     result.map_err(|e| {

@@ -63,6 +63,10 @@ pub struct TrainConfig {
     /// Probability that a sample is conditioned on another view too (with rho ~ U(0, 1)).
     pub cross_view_probability: f64,
     pub checkpoint_every: usize,
+    /// Per-target-channel weights of the flow loss (RGB, mask, near depth, far depth), normalised
+    /// to mean 1; empty = uniform. The mask is what the amodal IoU and the fusion use, and it is one
+    /// channel of six, so weighting it up spends the model's capacity where it is measured.
+    pub channel_loss_weights: Vec<f32>,
 }
 
 impl Default for TrainConfig {
@@ -80,6 +84,7 @@ impl Default for TrainConfig {
             timestep_shift: 1.0,
             cross_view_probability: 0.5,
             checkpoint_every: 200,
+            channel_loss_weights: Vec::new(),
         }
     }
 }
@@ -228,6 +233,17 @@ pub struct StepReport {
 impl Trainer {
     pub fn new(config: TrainConfig, device: &Device) -> Result<Self> {
         config.model.validate().map_err(TrainError::Config)?;
+        let w = &config.channel_loss_weights;
+        if !w.is_empty()
+            && (w.len() != config.model.target_channels
+                || w.iter().any(|x| !x.is_finite() || *x < 0.0)
+                || w.iter().sum::<f32>() <= 0.0)
+        {
+            return Err(TrainError::Config(format!(
+                "channel_loss_weights {w:?}: need {} non-negative weights, not all zero",
+                config.model.target_channels
+            )));
+        }
         let varmap = VarMap::new();
         let vb = VarBuilder::from_backend(
             Box::new(SeededInit::new(varmap.clone(), config.seed)),
@@ -391,7 +407,15 @@ impl Trainer {
         let eps = randn(x0.shape(), rng, &self.device)?;
         let x_t = interpolate(&x0, &eps, &t)?;
         let v = self.model.forward(&x_t, &t, &cond, &cond_tokens)?;
-        (v - velocity_target(&x0, &eps)?)?.sqr()?.mean_all()
+        let err = (v - velocity_target(&x0, &eps)?)?.sqr()?;
+        let w = &cfg.channel_loss_weights;
+        if w.is_empty() {
+            return err.mean_all();
+        }
+        let mean = w.iter().sum::<f32>() / w.len() as f32;
+        let w: Vec<f32> = w.iter().map(|x| x / mean).collect();
+        let w = Tensor::from_vec(w, (1, 1, 1, cfg.model.target_channels), &self.device)?;
+        err.broadcast_mul(&w)?.mean_all()
     }
 
     /// One optimisation step on a random batch.

@@ -27,7 +27,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::ground_truth::{sample_surfaces, seen_flags, GroundTruth};
-use crate::render::{add_sensor_noise, rasterize, render_scene, shade, Frame, SceneTriangles};
+use crate::render::{
+    add_sensor_noise, rasterize_coverage, render_scene, shade, Frame, PixelBox, SceneTriangles,
+};
 use crate::scene::{generate_scene, CameraPath, Scene, SceneConfig};
 use crate::{Result, SynthError};
 
@@ -84,9 +86,53 @@ pub struct RenderedView {
     /// What the sensor reports (noisy if configured).
     pub depth: DepthMap,
     pub rgb: RgbImage,
-    /// (instance id, amodal mask over the full image) for objects in view.
-    pub amodal: Vec<(u16, Vec<bool>)>,
+    /// Amodal masks of the objects in view.
+    pub amodal: Vec<AmodalMask>,
     pub visibility: Vec<Visibility>,
+}
+
+/// An object's amodal mask in one view, stored as the rectangle it covers (a full-frame mask per
+/// object and view was most of the renderer's memory traffic).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AmodalMask {
+    pub instance_id: u16,
+    /// `[u0, v0, u1, v1]`, inclusive.
+    pub rect: PixelBox,
+    /// Row-major over the rectangle.
+    pub mask: Vec<bool>,
+}
+
+impl AmodalMask {
+    /// Whether image pixel (u, v) is inside the mask.
+    #[inline]
+    pub fn contains(&self, u: u32, v: u32) -> bool {
+        let [u0, v0, u1, v1] = self.rect;
+        u >= u0
+            && u <= u1
+            && v >= v0
+            && v <= v1
+            && self.mask[((v - v0) * (u1 - u0 + 1) + (u - u0)) as usize]
+    }
+
+    /// Writes the mask into a full-frame buffer of width `width` (only the rectangle is touched).
+    pub fn paint(&self, width: u32, full: &mut [bool], value: bool) {
+        let [u0, v0, u1, v1] = self.rect.map(|x| x as usize);
+        let rw = u1 - u0 + 1;
+        for v in v0..=v1 {
+            let dst = &mut full[v * width as usize + u0..v * width as usize + u0 + rw];
+            let src = &self.mask[(v - v0) * rw..(v - v0 + 1) * rw];
+            for (d, &m) in dst.iter_mut().zip(src) {
+                *d = m && value;
+            }
+        }
+    }
+
+    /// The mask over the full image.
+    pub fn to_full(&self, width: u32, height: u32) -> Vec<bool> {
+        let mut full = vec![false; width as usize * height as usize];
+        self.paint(width, &mut full, true);
+        full
+    }
 }
 
 pub fn render_view(
@@ -98,17 +144,20 @@ pub fn render_view(
     let camera = scene.cameras[view];
     let frame = render_scene(&camera, scene, tris);
     let rgb = shade(&frame, &camera, scene, tris, [0, 0, 0]);
-    let mut sensor = frame.clone();
-    if config.sensor_noise {
+    let (w, h) = (frame.width, frame.height);
+    let sensor_depth = if config.sensor_noise {
+        let mut sensor = frame.clone();
         add_sensor_noise(
             &mut sensor,
             &camera,
             tris,
             scene.seed.wrapping_mul(1000).wrapping_add(view as u64),
         );
-    }
-    let (w, h) = (frame.width, frame.height);
-    let depth = DepthMap::new(w, h, sensor.depth_m).unwrap_or_else(|_| DepthMap::zeros(w, h));
+        sensor.depth_m
+    } else {
+        frame.depth_m.clone()
+    };
+    let depth = DepthMap::new(w, h, sensor_depth).unwrap_or_else(|_| DepthMap::zeros(w, h));
     let mut amodal = Vec::new();
     let mut visibility = Vec::new();
     // Visible pixel counts of every instance in one pass.
@@ -118,42 +167,29 @@ pub fn render_view(
             *c += 1;
         }
     }
-    // One buffer for every object rendered alone; cleared after each use.
-    let mut alone = Frame::new(w, h);
+    // One coverage buffer for every object rendered alone; cleared after each use.
+    let (w_us, h_us) = (w as usize, h as usize);
+    let mut coverage = vec![false; w_us * h_us];
     for (k, obj) in scene.objects.iter().enumerate() {
         // Room structure is never completed: no amodal mask for it (it would be a full-frame
         // render per view for nothing).
         if obj.category.is_structure() {
             continue;
         }
-        let Some([u0, v0, u1, v1]) = rasterize(
-            &camera,
-            tris,
-            tris.object_ranges[k].clone(),
-            &|_| obj.instance_id,
-            &mut alone,
-        ) else {
+        let Some(rect) =
+            rasterize_coverage(&camera, tris, tris.object_ranges[k].clone(), &mut coverage)
+        else {
             continue;
         };
-        // Read and clear only the rectangle the object was drawn in.
-        let (w_us, h_us) = (w as usize, h as usize);
-        let mut mask = vec![false; w_us * h_us];
-        let mut amodal_px = 0u32;
-        for v in v0 as usize..=v1 as usize {
-            let span = v * w_us + u0 as usize..=v * w_us + u1 as usize;
-            for (m, &id) in mask[span.clone()]
-                .iter_mut()
-                .zip(&alone.instance[span.clone()])
-            {
-                if id != 0 {
-                    *m = true;
-                    amodal_px += 1;
-                }
-            }
-            alone.depth_m[span.clone()].fill(0.0);
-            alone.instance[span.clone()].fill(0);
-            alone.triangle[span].fill(u32::MAX);
+        // Copy out and clear only the rectangle the object was drawn in.
+        let [u0, v0, u1, v1] = rect.map(|x| x as usize);
+        let mut mask = Vec::with_capacity((u1 - u0 + 1) * (v1 - v0 + 1));
+        for v in v0..=v1 {
+            let row = &mut coverage[v * w_us + u0..=v * w_us + u1];
+            mask.extend_from_slice(row);
+            row.fill(false);
         }
+        let amodal_px = mask.iter().filter(|&&m| m).count() as u32;
         if amodal_px == 0 {
             continue;
         }
@@ -161,14 +197,8 @@ pub fn render_view(
             .get(obj.instance_id as usize)
             .copied()
             .unwrap_or(0);
-        // Touching the image border, within the drawn rectangle.
-        let truncated = (u0..=u1).any(|u| {
-            let u = u as usize;
-            mask[u] || mask[(h_us - 1) * w_us + u]
-        }) || (v0..=v1).any(|v| {
-            let v = v as usize;
-            mask[v * w_us] || mask[v * w_us + w_us - 1]
-        });
+        // Touching the image border: the drawn rectangle reaches it (spans are exact).
+        let truncated = u0 == 0 || v0 == 0 || u1 == w_us - 1 || v1 == h_us - 1;
         visibility.push(Visibility {
             view,
             instance_id: obj.instance_id,
@@ -176,7 +206,11 @@ pub fn render_view(
             amodal_px,
             truncated,
         });
-        amodal.push((obj.instance_id, mask));
+        amodal.push(AmodalMask {
+            instance_id: obj.instance_id,
+            rect,
+            mask,
+        });
     }
     RenderedView {
         camera,
@@ -203,7 +237,7 @@ pub fn render_full_scene(config: &SceneConfig, seed: u64) -> Result<RenderedScen
         .map(|v| render_view(&scene, &tris, config, v))
         .collect();
     let cloud = sample_surfaces(&scene, &tris, config.gt_points_per_m2, seed);
-    let frames: Vec<Frame> = views.iter().map(|v| v.frame.clone()).collect();
+    let frames: Vec<&Frame> = views.iter().map(|v| &v.frame).collect();
     let seen = seen_flags(&cloud, &scene.cameras, &frames);
     Ok(RenderedScene {
         scene,
@@ -226,32 +260,53 @@ pub fn write_scene(
         std::fs::create_dir_all(dir.join(sub))
             .map_err(|e| deocc_io::IoError::new(&dir.join(sub), e))?;
     }
-    rendered
-        .views
-        .par_iter()
-        .enumerate()
-        .try_for_each(|(v, view)| -> Result<()> {
-            let name = frame_name(v);
-            write_rgb_png(&dir.join("rgb").join(format!("{name}.png")), &view.rgb)?;
-            write_depth_png(&dir.join("depth").join(format!("{name}.png")), &view.depth)?;
-            let inst = InstanceMap {
-                width: view.frame.width,
-                height: view.frame.height,
-                ids: view.frame.instance.clone(),
-            };
-            write_instance_png(&dir.join("instances").join(format!("{name}.png")), &inst)?;
-            let adir = dir.join("amodal").join(&name);
-            std::fs::create_dir_all(&adir).map_err(|e| deocc_io::IoError::new(&adir, e))?;
-            for (id, mask) in &view.amodal {
-                write_mask_png(
-                    &adir.join(format!("{id:04}.png")),
-                    view.frame.width,
-                    view.frame.height,
-                    mask,
-                )?;
-            }
-            Ok(())
-        })?;
+    // The ground-truth PLY (tens of MB) is written while the views are.
+    let gt = &rendered.ground_truth;
+    let (views_done, gt_done) = rayon::join(
+        || {
+            rendered
+                .views
+                .par_iter()
+                .enumerate()
+                .try_for_each(|(v, view)| -> Result<()> {
+                    let name = frame_name(v);
+                    write_rgb_png(&dir.join("rgb").join(format!("{name}.png")), &view.rgb)?;
+                    write_depth_png(&dir.join("depth").join(format!("{name}.png")), &view.depth)?;
+                    let inst = InstanceMap {
+                        width: view.frame.width,
+                        height: view.frame.height,
+                        ids: view.frame.instance.clone(),
+                    };
+                    write_instance_png(&dir.join("instances").join(format!("{name}.png")), &inst)?;
+                    let adir = dir.join("amodal").join(&name);
+                    std::fs::create_dir_all(&adir).map_err(|e| deocc_io::IoError::new(&adir, e))?;
+                    let (w, h) = (view.frame.width, view.frame.height);
+                    let mut full = vec![false; w as usize * h as usize];
+                    for m in &view.amodal {
+                        m.paint(w, &mut full, true);
+                        write_mask_png(
+                            &adir.join(format!("{:04}.png", m.instance_id)),
+                            w,
+                            h,
+                            &full,
+                        )?;
+                        m.paint(w, &mut full, false);
+                    }
+                    Ok(())
+                })
+        },
+        || {
+            let seen_u8: Vec<u8> = gt.seen.iter().map(|&s| s as u8).collect();
+            write_point_cloud_with_extras(
+                &dir.join("ground_truth.ply"),
+                &gt.cloud,
+                &[("seen", &seen_u8)],
+                PlyEncoding::BinaryLittleEndian,
+            )
+        },
+    );
+    views_done?;
+    gt_done?;
     let frames: Vec<FrameCamera> = rendered
         .views
         .iter()
@@ -263,14 +318,6 @@ pub fn write_scene(
         })
         .collect();
     write_cameras_json(&dir.join("cameras.json"), &frames)?;
-    let gt = &rendered.ground_truth;
-    let seen_u8: Vec<u8> = gt.seen.iter().map(|&s| s as u8).collect();
-    write_point_cloud_with_extras(
-        &dir.join("ground_truth.ply"),
-        &gt.cloud,
-        &[("seen", &seen_u8)],
-        PlyEncoding::BinaryLittleEndian,
-    )?;
     let info = SceneInfo {
         seed: rendered.scene.seed,
         config: config.clone(),

@@ -17,36 +17,59 @@ pub struct GroundTruth {
     pub seen: Vec<bool>,
 }
 
+/// Positions, normals and instance ids sampled on one chunk of triangles.
+type ChunkSamples = (Vec<Point3<f32>>, Vec<Vector3<f32>>, Vec<u32>);
+
 /// Samples `density` points per square metre uniformly over every triangle (area-weighted; the
 /// fractional expected count decided by the seeded generator, so the sampling is deterministic).
+/// Triangles are sampled in fixed chunks, each with its own generator stream, so the result does
+/// not depend on the number of threads.
 pub fn sample_surfaces(
     scene: &Scene,
     tris: &SceneTriangles,
     density: f32,
     seed: u64,
 ) -> PointCloud {
-    let mut r = ChaCha8Rng::seed_from_u64(seed ^ 0x67_7470_6f69_6e74);
-    let mut positions = Vec::new();
-    let mut normals = Vec::new();
-    let mut instance = Vec::new();
-    for (ti, c) in tris.corners.iter().enumerate() {
-        let area = 0.5 * (c[1] - c[0]).cross(&(c[2] - c[0])).norm();
-        let expected = area * density;
-        let mut n = expected.floor() as usize;
-        if r.random::<f32>() < expected - n as f32 {
-            n += 1;
-        }
-        let id = scene.objects[tris.object[ti] as usize].instance_id as u32;
-        for _ in 0..n {
-            let (mut a, mut b): (f32, f32) = (r.random(), r.random());
-            if a + b > 1.0 {
-                a = 1.0 - a;
-                b = 1.0 - b;
+    use rayon::prelude::*;
+    const CHUNK: usize = 256;
+    let parts: Vec<ChunkSamples> = (0..tris.corners.len().div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|chunk| {
+            let mut r = ChaCha8Rng::seed_from_u64(seed ^ 0x67_7470_6f69_6e74);
+            r.set_stream(chunk as u64);
+            let range = chunk * CHUNK..((chunk + 1) * CHUNK).min(tris.corners.len());
+            let (mut positions, mut normals, mut instance) = (Vec::new(), Vec::new(), Vec::new());
+            for ti in range {
+                let c = &tris.corners[ti];
+                let area = 0.5 * (c[1] - c[0]).cross(&(c[2] - c[0])).norm();
+                let expected = area * density;
+                let mut n = expected as usize; // non-negative: truncation is floor
+                if r.random::<f32>() < expected - n as f32 {
+                    n += 1;
+                }
+                let id = scene.objects[tris.object[ti] as usize].instance_id as u32;
+                for _ in 0..n {
+                    let (mut a, mut b): (f32, f32) = (r.random(), r.random());
+                    if a + b > 1.0 {
+                        a = 1.0 - a;
+                        b = 1.0 - b;
+                    }
+                    positions.push(c[0] + (c[1] - c[0]) * a + (c[2] - c[0]) * b);
+                    normals.push(tris.normals[ti]);
+                    instance.push(id);
+                }
             }
-            positions.push(c[0] + (c[1] - c[0]) * a + (c[2] - c[0]) * b);
-            normals.push(tris.normals[ti]);
-            instance.push(id);
-        }
+            (positions, normals, instance)
+        })
+        .collect();
+    let total = parts.iter().map(|p| p.0.len()).sum();
+    let mut positions = Vec::with_capacity(total);
+    let mut normals = Vec::with_capacity(total);
+    let mut instance = Vec::with_capacity(total);
+    for (p, n, i) in parts {
+        positions.extend_from_slice(&p);
+        normals.extend_from_slice(&n);
+        instance.extend_from_slice(&i);
     }
     PointCloud {
         positions,
@@ -67,8 +90,12 @@ fn visible_through(p: &Point3<f32>, id: u16, projector: &Projector, frame: &Fram
     let Some((x, y, z)) = projector.project(p) else {
         return false;
     };
-    let (u, v) = (x.floor(), y.floor());
-    if u < 0.0 || v < 0.0 || u >= frame.width as f32 || v >= frame.height as f32 {
+    if x < 0.0 || y < 0.0 {
+        return false;
+    }
+    // Non-negative: truncation is floor.
+    let (u, v) = (x as u32, y as u32);
+    if u >= frame.width || v >= frame.height {
         return false;
     }
     let i = v as usize * frame.width as usize + u as usize;
@@ -76,7 +103,7 @@ fn visible_through(p: &Point3<f32>, id: u16, projector: &Projector, frame: &Fram
 }
 
 /// Marks the points any of the (noise-free) frames sees.
-pub fn seen_flags(cloud: &PointCloud, cameras: &[Camera], frames: &[Frame]) -> Vec<bool> {
+pub fn seen_flags(cloud: &PointCloud, cameras: &[Camera], frames: &[&Frame]) -> Vec<bool> {
     let ids = cloud.instance.as_deref().unwrap_or(&[]);
     let projectors: Vec<Projector> = cameras.iter().map(Camera::projector).collect();
     use rayon::prelude::*;

@@ -76,6 +76,174 @@ impl SceneTriangles {
 /// Pixel rectangle `[u0, v0, u1, v1]`, inclusive.
 pub type PixelBox = [u32; 4];
 
+fn union_box(a: Option<PixelBox>, b: PixelBox) -> PixelBox {
+    match a {
+        None => b,
+        Some(a) => [
+            a[0].min(b[0]),
+            a[1].min(b[1]),
+            a[2].max(b[2]),
+            a[3].max(b[3]),
+        ],
+    }
+}
+
+/// floor / ceil to i32 without libm calls (the baseline x86-64 target has no rounding
+/// instruction, and these run once per triangle row). Saturating, NaN -> 0.
+#[inline]
+pub(crate) fn floor_i32(x: f32) -> i32 {
+    let i = x as i32;
+    if (i as f32) > x {
+        i - 1
+    } else {
+        i
+    }
+}
+#[inline]
+fn ceil_i32(x: f32) -> i32 {
+    let i = x as i32;
+    if (i as f32) < x {
+        i + 1
+    } else {
+        i
+    }
+}
+
+/// A screen-space vertex: pixel x, pixel y, 1 / depth.
+type ScreenVertex = (f32, f32, f32);
+
+/// Projects and near-clips the triangles in `range`, calling `f(triangle index, screen vertices)`
+/// for each screen triangle (a triangle cut by the near plane gives one or two). Triangles whose
+/// screen box misses the image are dropped before `f`.
+fn for_each_screen_triangle(
+    camera: &Camera,
+    tris: &SceneTriangles,
+    range: std::ops::Range<usize>,
+    mut f: impl FnMut(usize, [ScreenVertex; 3]),
+) {
+    let projector = camera.projector();
+    let (w, h) = (
+        camera.intrinsics.width() as f32,
+        camera.intrinsics.height() as f32,
+    );
+    for ti in range {
+        let c = &tris.corners[ti];
+        let p = [
+            projector.homogeneous(&c[0]),
+            projector.homogeneous(&c[1]),
+            projector.homogeneous(&c[2]),
+        ];
+        let in_front = p.iter().filter(|q| q[2] >= NEAR_M).count();
+        if in_front == 0 {
+            continue;
+        }
+        // Sutherland-Hodgman against z = NEAR in homogeneous image space (linear in the world
+        // point, so interpolating there is exact): at most 4 vertices.
+        let mut poly = [[0f32; 3]; 4];
+        let mut n = 0;
+        if in_front == 3 {
+            poly[..3].copy_from_slice(&p);
+            n = 3;
+        } else {
+            for i in 0..3 {
+                let (a, b) = (p[i], p[(i + 1) % 3]);
+                if a[2] >= NEAR_M {
+                    poly[n] = a;
+                    n += 1;
+                }
+                if (a[2] >= NEAR_M) != (b[2] >= NEAR_M) {
+                    let t = (NEAR_M - a[2]) / (b[2] - a[2]);
+                    poly[n] = std::array::from_fn(|k| a[k] + (b[k] - a[k]) * t);
+                    n += 1;
+                }
+            }
+        }
+        let mut screen = [(0f32, 0f32, 0f32); 4];
+        let (mut lo_x, mut hi_x, mut lo_y, mut hi_y) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+        for (sv, q) in screen.iter_mut().zip(&poly[..n]) {
+            let inv_z = 1.0 / q[2];
+            *sv = (q[0] * inv_z, q[1] * inv_z, inv_z);
+            lo_x = lo_x.min(sv.0);
+            hi_x = hi_x.max(sv.0);
+            lo_y = lo_y.min(sv.1);
+            hi_y = hi_y.max(sv.1);
+        }
+        // Pixel centres are at +0.5: a triangle entirely left of 0.5 or right of w - 0.5 covers
+        // none of them.
+        if hi_x < 0.5 || hi_y < 0.5 || lo_x > w - 0.5 || lo_y > h - 0.5 {
+            continue;
+        }
+        for j in 1..n.saturating_sub(1) {
+            f(ti, [screen[0], screen[j], screen[j + 1]]);
+        }
+    }
+}
+
+/// Calls `span(v, u_first, u_last, y)` for every image row `v` the triangle covers, with the run
+/// of pixel centres inside it (edges included); returns the box of the spans, if any.
+#[inline]
+fn for_each_span(
+    s: [ScreenVertex; 3],
+    w: i32,
+    h: i32,
+    mut span: impl FnMut(i32, i32, i32, f32),
+) -> Option<PixelBox> {
+    let min_y = s[0].1.min(s[1].1).min(s[2].1);
+    let max_y = s[0].1.max(s[1].1).max(s[2].1);
+    let min_x = s[0].0.min(s[1].0).min(s[2].0);
+    let max_x = s[0].0.max(s[1].0).max(s[2].0);
+    let u0 = ceil_i32(min_x - 0.5).max(0);
+    let u1 = floor_i32(max_x - 0.5).min(w - 1);
+    let v0 = ceil_i32(min_y - 0.5).max(0);
+    let v1 = floor_i32(max_y - 0.5).min(h - 1);
+    if u0 > u1 || v0 > v1 {
+        return None;
+    }
+    let area = (s[1].0 - s[0].0) * (s[2].1 - s[0].1) - (s[1].1 - s[0].1) * (s[2].0 - s[0].0);
+    if area.abs() < 1e-12 {
+        return None;
+    }
+    // Barycentric weight of vertex i as a plane a x + b y + c (the edge function of the opposite
+    // edge over the area): a pixel is inside when all three are >= 0.
+    let inv_area = 1.0 / area;
+    let edge = |a: ScreenVertex, b: ScreenVertex| {
+        let (ea, eb) = (-(b.1 - a.1) * inv_area, (b.0 - a.0) * inv_area);
+        (ea, eb, -(ea * a.0 + eb * a.1))
+    };
+    let e = [edge(s[1], s[2]), edge(s[2], s[0]), edge(s[0], s[1])];
+    let mut bounds: Option<PixelBox> = None;
+    for v in v0..=v1 {
+        let y = v as f32 + 0.5;
+        // Each edge bounds x on one side: solve a x + (b y + c) >= 0 for x.
+        let (mut lo, mut hi) = (u0 as f32 + 0.5, u1 as f32 + 0.5);
+        let mut empty = false;
+        for &(a, b, c) in &e {
+            let rest = b * y + c;
+            if a > 0.0 {
+                lo = lo.max(-rest / a);
+            } else if a < 0.0 {
+                hi = hi.min(-rest / a);
+            } else if rest < 0.0 {
+                empty = true;
+            }
+        }
+        if empty || lo > hi {
+            continue;
+        }
+        let ua = ceil_i32(lo - 0.5).max(u0);
+        let ub = floor_i32(hi - 0.5).min(u1);
+        if ua > ub {
+            continue;
+        }
+        span(v, ua, ub, y);
+        bounds = Some(union_box(
+            bounds,
+            [ua as u32, v as u32, ub as u32, v as u32],
+        ));
+    }
+    bounds
+}
+
 /// Rasterises the triangles in `range` (indices into `tris`) into `frame`. Returns a rectangle
 /// holding every pixel written (None if none was), so that a caller rendering one object can
 /// read and clear just that part of the frame.
@@ -87,113 +255,75 @@ pub fn rasterize(
     frame: &mut Frame,
 ) -> Option<PixelBox> {
     let mut bounds: Option<PixelBox> = None;
-    let k = &camera.intrinsics;
-    let cam_from_world = camera.world_from_camera.inverse();
     let (w, h) = (frame.width as i32, frame.height as i32);
-    let (fx, fy, cx, cy) = (k.fx(), k.fy(), k.cx(), k.cy());
-    let mut poly: Vec<Point3<f32>> = Vec::with_capacity(5);
-    for ti in range {
-        let c = tris.corners[ti];
-        let p = c.map(|q| cam_from_world.transform_point(&q));
-        if p.iter().all(|q| q.z < NEAR_M) {
-            continue;
-        }
-        poly.clear();
-        if p.iter().all(|q| q.z >= NEAR_M) {
-            poly.extend_from_slice(&p);
-        } else {
-            // Sutherland-Hodgman against z = NEAR.
-            for i in 0..3 {
-                let (a, b) = (p[i], p[(i + 1) % 3]);
-                if a.z >= NEAR_M {
-                    poly.push(a);
-                }
-                if (a.z >= NEAR_M) != (b.z >= NEAR_M) {
-                    let t = (NEAR_M - a.z) / (b.z - a.z);
-                    poly.push(a + (b - a) * t);
-                }
-            }
-        }
-        let screen: Vec<(f32, f32, f32)> = poly
-            .iter()
-            .map(|q| (fx * q.x / q.z + cx, fy * q.y / q.z + cy, 1.0 / q.z))
-            .collect();
+    let farthest = frame.farthest;
+    let Frame {
+        depth_m,
+        instance,
+        triangle,
+        ..
+    } = frame;
+    for_each_screen_triangle(camera, tris, range, |ti, s| {
         let inst = instance_of(ti);
-        for j in 1..screen.len().saturating_sub(1) {
-            if let Some(b) = raster_triangle(
-                [screen[0], screen[j], screen[j + 1]],
-                w,
-                h,
-                ti as u32,
-                inst,
-                frame,
-            ) {
-                bounds = Some(match bounds {
-                    None => b,
-                    Some(a) => [
-                        a[0].min(b[0]),
-                        a[1].min(b[1]),
-                        a[2].max(b[2]),
-                        a[3].max(b[3]),
-                    ],
-                });
-            }
+        // 1/z is affine in screen space: the same plane form as the barycentric weights.
+        let area = (s[1].0 - s[0].0) * (s[2].1 - s[0].1) - (s[1].1 - s[0].1) * (s[2].0 - s[0].0);
+        if area.abs() < 1e-12 {
+            return;
         }
-    }
+        let inv_area = 1.0 / area;
+        let (dx1, dy1, dz1) = (s[1].0 - s[0].0, s[1].1 - s[0].1, s[1].2 - s[0].2);
+        let (dx2, dy2, dz2) = (s[2].0 - s[0].0, s[2].1 - s[0].1, s[2].2 - s[0].2);
+        let za = (dz1 * dy2 - dz2 * dy1) * inv_area;
+        let zb = (dz2 * dx1 - dz1 * dx2) * inv_area;
+        let zc = s[0].2 - za * s[0].0 - zb * s[0].1;
+        let drawn = for_each_span(s, w, h, |v, ua, ub, y| {
+            let row = v as usize * w as usize;
+            let base = zb * y + zc;
+            for u in ua..=ub {
+                let inv_z = za * (u as f32 + 0.5) + base;
+                let idx = row + u as usize;
+                let cur = depth_m[idx];
+                // z < cur  <=>  cur / z > 1: the depth test without a division; only the pixels
+                // that win (not every covered one, overdraw included) pay for 1 / inv_z.
+                if cur == 0.0 || (cur * inv_z > 1.0) != farthest {
+                    depth_m[idx] = 1.0 / inv_z;
+                    instance[idx] = inst;
+                    triangle[idx] = ti as u32;
+                }
+            }
+        });
+        if let Some(b) = drawn {
+            bounds = Some(union_box(bounds, b));
+        }
+    });
     bounds
 }
 
-#[inline]
-fn raster_triangle(
-    s: [(f32, f32, f32); 3],
-    w: i32,
-    h: i32,
-    tri: u32,
-    inst: u16,
-    frame: &mut Frame,
+/// Marks in `mask` (row-major, the camera's image size) every pixel the triangles in `range`
+/// cover, without depth: an object's amodal mask needs only its coverage. Returns the box of the
+/// pixels marked, if any.
+pub fn rasterize_coverage(
+    camera: &Camera,
+    tris: &SceneTriangles,
+    range: std::ops::Range<usize>,
+    mask: &mut [bool],
 ) -> Option<PixelBox> {
-    let min_x = s.iter().map(|v| v.0).fold(f32::INFINITY, f32::min);
-    let max_x = s.iter().map(|v| v.0).fold(f32::NEG_INFINITY, f32::max);
-    let min_y = s.iter().map(|v| v.1).fold(f32::INFINITY, f32::min);
-    let max_y = s.iter().map(|v| v.1).fold(f32::NEG_INFINITY, f32::max);
-    let u0 = ((min_x - 0.5).ceil() as i32).max(0);
-    let u1 = ((max_x - 0.5).floor() as i32).min(w - 1);
-    let v0 = ((min_y - 0.5).ceil() as i32).max(0);
-    let v1 = ((max_y - 0.5).floor() as i32).min(h - 1);
-    if u0 > u1 || v0 > v1 {
-        return None;
-    }
-    let area = (s[1].0 - s[0].0) * (s[2].1 - s[0].1) - (s[1].1 - s[0].1) * (s[2].0 - s[0].0);
-    if area.abs() < 1e-12 {
-        return None;
-    }
-    let inv_area = 1.0 / area;
-    let edge = |a: (f32, f32, f32), b: (f32, f32, f32), x: f32, y: f32| {
-        (b.0 - a.0) * (y - a.1) - (b.1 - a.1) * (x - a.0)
-    };
-    for v in v0..=v1 {
-        let y = v as f32 + 0.5;
-        let row = v as usize * w as usize;
-        for u in u0..=u1 {
-            let x = u as f32 + 0.5;
-            let b0 = edge(s[1], s[2], x, y) * inv_area;
-            let b1 = edge(s[2], s[0], x, y) * inv_area;
-            let b2 = edge(s[0], s[1], x, y) * inv_area;
-            if b0 < 0.0 || b1 < 0.0 || b2 < 0.0 {
-                continue;
-            }
-            let inv_z = b0 * s[0].2 + b1 * s[1].2 + b2 * s[2].2;
-            let z = 1.0 / inv_z;
-            let idx = row + u as usize;
-            let cur = frame.depth_m[idx];
-            if cur == 0.0 || (z < cur) != frame.farthest {
-                frame.depth_m[idx] = z;
-                frame.instance[idx] = inst;
-                frame.triangle[idx] = tri;
-            }
+    let (w, h) = (
+        camera.intrinsics.width() as i32,
+        camera.intrinsics.height() as i32,
+    );
+    assert_eq!(mask.len(), (w * h) as usize, "mask size != image size");
+    let mut bounds: Option<PixelBox> = None;
+    for_each_screen_triangle(camera, tris, range, |_, s| {
+        let drawn = for_each_span(s, w, h, |v, ua, ub, _| {
+            let row = v as usize * w as usize;
+            mask[row + ua as usize..=row + ub as usize].fill(true);
+        });
+        if let Some(b) = drawn {
+            bounds = Some(union_box(bounds, b));
         }
-    }
-    Some([u0 as u32, v0 as u32, u1 as u32, v1 as u32])
+    });
+    bounds
 }
 
 /// Renders the whole scene.
@@ -230,34 +360,36 @@ fn light() -> Vector3<f32> {
     Vector3::new(0.35, -0.45, 1.0).normalize()
 }
 
-fn hash3(x: i32, y: i32, z: i32, seed: u32) -> f32 {
-    let mut h = (x as u32).wrapping_mul(0x8da6_b343)
-        ^ (y as u32).wrapping_mul(0xd816_3841)
-        ^ (z as u32).wrapping_mul(0xcb1a_b31f)
-        ^ seed.wrapping_mul(0x9e37_79b9);
+/// Lattice hash of a corner from its per-axis parts (`x * A ^ y * B ^ z * C ^ seed * D`, split so
+/// that the eight corners of a cell share the products), in [0, 1].
+#[inline]
+fn hash_mix(h: u32) -> f32 {
+    let mut h = h;
     h ^= h >> 15;
     h = h.wrapping_mul(0x2c1b_3c6d);
     h ^= h >> 12;
-    (h & 0xffff) as f32 / 65535.0
+    (h & 0xffff) as f32 * (1.0 / 65535.0)
 }
 
+/// Trilinear value noise with smoothstep weights.
 fn value_noise(p: Vector3<f32>, seed: u32) -> f32 {
-    let f = p.map(f32::floor);
-    let t = p - f;
-    let s = t.map(|v| v * v * (3.0 - 2.0 * v));
-    let (x, y, z) = (f.x as i32, f.y as i32, f.z as i32);
-    let mut acc = 0.0;
-    for dz in 0..2 {
-        for dy in 0..2 {
-            for dx in 0..2 {
-                let wgt = (if dx == 1 { s.x } else { 1.0 - s.x })
-                    * (if dy == 1 { s.y } else { 1.0 - s.y })
-                    * (if dz == 1 { s.z } else { 1.0 - s.z });
-                acc += wgt * hash3(x + dx, y + dy, z + dz, seed);
-            }
-        }
-    }
-    acc
+    let (x, y, z) = (floor_i32(p.x), floor_i32(p.y), floor_i32(p.z));
+    let smooth = |v: f32| v * v * (3.0 - 2.0 * v);
+    let (sx, sy, sz) = (
+        smooth(p.x - x as f32),
+        smooth(p.y - y as f32),
+        smooth(p.z - z as f32),
+    );
+    let hx = [x, x + 1].map(|v| (v as u32).wrapping_mul(0x8da6_b343));
+    let hy = [y, y + 1].map(|v| (v as u32).wrapping_mul(0xd816_3841));
+    let hs = seed.wrapping_mul(0x9e37_79b9);
+    let hz = [z, z + 1].map(|v| (v as u32).wrapping_mul(0xcb1a_b31f) ^ hs);
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let plane = |hz: u32| {
+        let row = |hy: u32| lerp(hash_mix(hx[0] ^ hy ^ hz), hash_mix(hx[1] ^ hy ^ hz), sx);
+        lerp(row(hy[0]), row(hy[1]), sy)
+    };
+    lerp(plane(hz[0]), plane(hz[1]), sz)
 }
 
 /// Albedo of an object at a world point.
@@ -265,11 +397,11 @@ pub fn albedo(app: &Appearance, p: &Point3<f32>, seed: u32) -> [f32; 3] {
     let mix = match app.texture {
         Texture::Solid => 0.0,
         Texture::Stripes { period_m, axis } => {
-            ((p[axis as usize % 3] / period_m).floor() as i64).rem_euclid(2) as f32
+            floor_i32(p[axis as usize % 3] / period_m).rem_euclid(2) as f32
         }
         Texture::Checker { period_m } => {
             let q = p.coords / period_m;
-            ((q.x.floor() + q.y.floor() + q.z.floor()) as i64).rem_euclid(2) as f32
+            (floor_i32(q.x) + floor_i32(q.y) + floor_i32(q.z)).rem_euclid(2) as f32
         }
         Texture::Noise { period_m } => value_noise(p.coords / period_m, seed),
     };
@@ -288,16 +420,22 @@ pub fn shade(
     let mut img = RgbImage::from_pixel(frame.width, frame.height, image::Rgb(background));
     let l = light();
     let eye = camera.center();
+    // unproject_pixel per pixel, with the rotation as a matrix (a quaternion rotation per pixel
+    // cost more than the shading).
+    let rot = camera.world_from_camera.rotation.to_rotation_matrix();
+    let k = &camera.intrinsics;
+    let (fx, fy, cx, cy) = (k.fx(), k.fy(), k.cx(), k.cy());
     for (i, px) in img.pixels_mut().enumerate() {
         let ti = frame.triangle[i];
         if ti == u32::MAX {
             continue;
         }
         let (u, v) = (
-            (i % frame.width as usize) as u32,
-            (i / frame.width as usize) as u32,
+            (i % frame.width as usize) as f32 + 0.5,
+            (i / frame.width as usize) as f32 + 0.5,
         );
-        let p = camera.unproject_pixel(u, v, frame.depth_m[i]);
+        let z = frame.depth_m[i];
+        let p = eye + rot * Vector3::new((u - cx) / fx * z, (v - cy) / fy * z, z);
         let obj = tris.object[ti as usize] as usize;
         let mut n = tris.normals[ti as usize];
         if n.dot(&(eye - p)) < 0.0 {
@@ -305,7 +443,8 @@ pub fn shade(
         }
         let a = albedo(&scene.objects[obj].appearance, &p, obj as u32 + 1);
         let lum = 0.35 + 0.65 * n.dot(&l).max(0.0);
-        *px = image::Rgb(a.map(|c| (c * lum * 255.0).round().clamp(0.0, 255.0) as u8));
+        // Round half up on a non-negative value: + 0.5 and truncate (no libm call).
+        *px = image::Rgb(a.map(|c| ((c * lum * 255.0).clamp(0.0, 255.0) + 0.5) as u8));
     }
     img
 }

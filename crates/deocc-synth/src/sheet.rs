@@ -58,9 +58,9 @@ pub fn contact_sheet(views: &[RenderedView]) -> RgbImage {
                 );
                 sheet.put_pixel(2 * w + u, y0 + v, Rgb(id_color(view.frame.instance[i])));
                 let mut c = [0u8; 3];
-                for (id, mask) in &view.amodal {
-                    if mask[i] && view.frame.instance[i] != *id {
-                        c = id_color(*id).map(|x| x / 2);
+                for m in &view.amodal {
+                    if m.contains(u, v) && view.frame.instance[i] != m.instance_id {
+                        c = id_color(m.instance_id).map(|x| x / 2);
                     }
                 }
                 if view.frame.instance[i] != 0 && c == [0, 0, 0] {

@@ -119,9 +119,13 @@ fn amodal_masks_contain_visible_masks_and_equal_them_without_occluders() {
     let rendered = render_full_scene(&cfg, 12).unwrap();
     let mut unoccluded_seen = false;
     for view in &rendered.views {
-        for (id, mask) in &view.amodal {
+        for m in &view.amodal {
+            let (id, mask) = (
+                m.instance_id,
+                m.to_full(view.frame.width, view.frame.height),
+            );
             for (i, &inst) in view.frame.instance.iter().enumerate() {
-                if inst == *id {
+                if inst == id {
                     assert!(mask[i], "visible pixel {i} of {id} outside its amodal mask");
                 }
             }
@@ -140,6 +144,16 @@ fn amodal_masks_contain_visible_masks_and_equal_them_without_occluders() {
         let frame = render_scene(cam, &scene, &tris);
         let alone = render_object(cam, &scene, &tris, 0);
         assert_eq!(frame.instance, alone.instance);
+        // The depth-free coverage raster (used for amodal masks) marks exactly the same pixels.
+        let mut coverage = vec![false; frame.instance.len()];
+        deocc_synth::render::rasterize_coverage(
+            cam,
+            &tris,
+            tris.object_ranges[0].clone(),
+            &mut coverage,
+        );
+        let drawn: Vec<bool> = alone.instance.iter().map(|&i| i != 0).collect();
+        assert_eq!(coverage, drawn);
         unoccluded_seen |= frame.instance.iter().any(|&i| i != 0);
     }
     assert!(unoccluded_seen);
