@@ -328,6 +328,16 @@ pub struct AmodalArgs {
     /// Step counts to evaluate, comma-separated.
     #[arg(long, default_value = "1,2,4,8,50", value_delimiter = ',')]
     steps: Vec<usize>,
+    /// Which shards of --data to use: test (held-out, the reported figures) or val (for choosing
+    /// the mask threshold).
+    #[arg(long, default_value = "test")]
+    split: String,
+    /// Also report the main-steps mIoU at these mask thresholds (in [-1, 1]), comma-separated.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    mask_thresholds: Vec<f32>,
+    /// Override the model's mask threshold (from its train.json) for every figure.
+    #[arg(long, allow_hyphen_values = true)]
+    mask_threshold: Option<f32>,
 }
 
 pub fn run(cmd: EvalCommand) -> Result<()> {
@@ -338,13 +348,18 @@ pub fn run(cmd: EvalCommand) -> Result<()> {
     }
 }
 
-/// Test pairs: from shards if given, else rendered from the test split's first scenes.
-fn test_pairs(data: Option<&PathBuf>, want: usize) -> Result<PairData> {
+/// Evaluation pairs: from a split's shards if given, else rendered from the test split's first
+/// scenes.
+fn test_pairs(data: Option<&PathBuf>, split: &str, want: usize) -> Result<PairData> {
     if let Some(dir) = data {
-        let files = shards(dir, "test")
-            .with_context(|| format!("{}: cannot list test pairs", dir.display()))?;
+        let files = shards(dir, split)
+            .with_context(|| format!("{}: cannot list {split} pairs", dir.display()))?;
         if files.is_empty() {
-            bail!("{}: no test-*.safetensors shards", dir.display());
+            bail!(
+                "{}: no {split}-*.safetensors shards (make them with `deocc synth pairs --split {split} --out {}`)",
+                dir.display(),
+                dir.display()
+            );
         }
         return Ok(PairData::load(&files)?);
     }
@@ -368,8 +383,17 @@ fn amodal(a: AmodalArgs) -> Result<()> {
             a.weights.display()
         );
     }
-    let completer = Completer::from_dir(&a.weights, &candle_core::Device::Cpu)?;
-    let data = test_pairs(a.data.as_ref(), a.pairs)?;
+    if a.split != "test" && a.split != "val" {
+        bail!("--split must be test or val, not '{}'", a.split);
+    }
+    if a.split == "val" && a.data.is_none() {
+        bail!("--split val needs --data (a folder with val-*.safetensors shards)");
+    }
+    let mut completer = Completer::from_dir(&a.weights, &candle_core::Device::Cpu)?;
+    if let Some(th) = a.mask_threshold {
+        completer.mask_threshold = th;
+    }
+    let data = test_pairs(a.data.as_ref(), &a.split, a.pairs)?;
     if data.resolution() != completer.resolution() {
         bail!(
             "test pairs are {0}x{0} but the model expects {1}x{1}",
@@ -380,6 +404,7 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     let opts = AmodalEvalOptions {
         pairs: a.pairs,
         steps: a.steps.clone(),
+        mask_thresholds: a.mask_thresholds.clone(),
         ..AmodalEvalOptions::default()
     };
     eprintln!(

@@ -21,6 +21,9 @@ pub struct AmodalEvalOptions {
     pub rho: f32,
     pub batch: usize,
     pub seed: u64,
+    /// Mask thresholds to report the main-steps mIoU at (the completer's own is always used for
+    /// every other figure).
+    pub mask_thresholds: Vec<f32>,
 }
 
 impl Default for AmodalEvalOptions {
@@ -32,6 +35,7 @@ impl Default for AmodalEvalOptions {
             rho: 0.5,
             batch: 16,
             seed: 0,
+            mask_thresholds: Vec::new(),
         }
     }
 }
@@ -86,6 +90,9 @@ pub struct AmodalReport {
     pub miou_baseline_visible: f64,
     pub miou_baseline_convex_hull: f64,
     pub main_steps: usize,
+    /// The completer's mask threshold, and the main-steps mIoU at other thresholds.
+    pub mask_threshold: f32,
+    pub miou_by_mask_threshold: BTreeMap<String, f64>,
     /// Figures at `main_steps`, by occlusion level (light: 10-40% hidden, heavy: over 40%).
     pub light: GroupFigures,
     pub heavy: GroupFigures,
@@ -178,6 +185,22 @@ pub fn evaluate_amodal(
             )
         }
     };
+    let miou_by_mask_threshold = opts
+        .mask_thresholds
+        .iter()
+        .map(|&th| {
+            let m = mean((0..n).map(|k| {
+                let pred: Vec<bool> = main_comp[k]
+                    .mask_score
+                    .iter()
+                    .zip(&visible[k])
+                    .map(|(&s, &v)| s > th || v)
+                    .collect();
+                iou(&pred, &truth[k])
+            }));
+            (format!("{th:.2}"), m)
+        })
+        .collect();
     let group = |keep: &dyn Fn(usize) -> bool| -> GroupFigures {
         let ks: Vec<usize> = (0..n).filter(|&k| keep(idx[k])).collect();
         GroupFigures {
@@ -295,6 +318,8 @@ pub fn evaluate_amodal(
         miou_baseline_visible: mean(iou_visible.iter().copied()),
         miou_baseline_convex_hull: mean(iou_hull.iter().copied()),
         main_steps: opts.main_steps,
+        mask_threshold: c.mask_threshold,
+        miou_by_mask_threshold,
         light,
         heavy,
         held_out_shapes,

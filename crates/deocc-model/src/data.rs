@@ -3,7 +3,9 @@
 //! Target channels (in [-1, 1] roughly): RGB `v / 127.5 - 1`, amodal mask `2 m - 1`, relative
 //! depth of the object's near side and of its far side (its back, which no view shows), times
 //! [`DEPTH_SCALE`]. Conditioning channels: crop RGB, visible mask, visible relative
-//! depth, scaled the same way.
+//! depth, and the whole crop's observed relative depth (clamped to [-1, 1]), scaled the same way.
+//! The last one tells the model where something is in front of the object (it may continue
+//! there) and where the scene is behind it (it cannot: it would be seen).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -15,7 +17,7 @@ use rand::Rng;
 /// Relative depth is (d - median visible) / crop width: about +-0.5; doubled to fill [-1, 1].
 pub const DEPTH_SCALE: f32 = 2.0;
 pub const TARGET_CHANNELS: usize = 6;
-pub const COND_CHANNELS: usize = 5;
+pub const COND_CHANNELS: usize = 6;
 
 /// Pairs plus an index of which pairs show the same object.
 pub struct PairData {
@@ -91,6 +93,7 @@ impl PairData {
                 target[o * TARGET_CHANNELS + 5] = s.whole_back_depth[p] * DEPTH_SCALE;
                 cond[o * COND_CHANNELS + 3] = 2.0 * s.visible_mask[p] as f32 - 1.0;
                 cond[o * COND_CHANNELS + 4] = s.visible_depth[p] * DEPTH_SCALE;
+                cond[o * COND_CHANNELS + 5] = s.scene_depth[p] * DEPTH_SCALE;
             }
         }
     }
@@ -158,7 +161,7 @@ pub fn shards(dir: &Path, split: &str) -> std::io::Result<Vec<std::path::PathBuf
     Ok(v)
 }
 
-/// The visible prior of a condition batch (B, R, R, 5) in target channels (B, R, R, 6): the crop's
+/// The visible prior of a condition batch (B, R, R, >= 5) in target channels (B, R, R, 6): the crop's
 /// RGB on the visible pixels and white elsewhere, the visible mask as the amodal mask, and the
 /// visible depth for both the near and the far side. It is the "amodal = visible" answer: exact on
 /// every pixel an occluder does not hide, which is why the residual model generates only the rest.

@@ -18,6 +18,8 @@ use rand::SeedableRng;
 pub struct Completer {
     pub model: GlDot,
     pub timestep_shift: f32,
+    /// A pixel is in the amodal mask when the mask channel (in [-1, 1]) is above this.
+    pub mask_threshold: f32,
     pub device: Device,
 }
 
@@ -26,8 +28,10 @@ pub struct Completer {
 pub struct Completion {
     /// (R*R*3) RGB of the whole object on white.
     pub rgb: Vec<u8>,
-    /// (R*R) amodal mask: the mask channel above 0, or visible.
+    /// (R*R) amodal mask: the mask channel above the completer's threshold, or visible.
     pub amodal: Vec<bool>,
+    /// (R*R) the mask channel itself, in [-1, 1] roughly (for choosing the threshold).
+    pub mask_score: Vec<f32>,
     /// (R*R) relative depth of the near side (the training pairs' units), meaningful inside `amodal`.
     pub depth_rel: Vec<f32>,
     /// (R*R) relative depth of the far side (the object's back).
@@ -59,6 +63,7 @@ impl Completer {
         Ok(Self {
             model,
             timestep_shift,
+            mask_threshold: 0.0,
             device: device.clone(),
         })
     }
@@ -71,7 +76,9 @@ impl Completer {
         } else {
             dir.join("model.safetensors")
         };
-        Self::load(&weights, &cfg.model, cfg.timestep_shift, device)
+        let mut completer = Self::load(&weights, &cfg.model, cfg.timestep_shift, device)?;
+        completer.mask_threshold = cfg.mask_threshold;
+        Ok(completer)
     }
 
     pub fn resolution(&self) -> usize {
@@ -91,6 +98,7 @@ impl Completer {
     ) -> Result<Vec<Completion>> {
         let (b, r, _, c) = cond.dims4()?;
         if c != COND_CHANNELS || r != self.resolution() {
+            // Data carries COND_CHANNELS; the model reads the first `cond_channels` of them.
             return Err(TrainError::Config(format!(
                 "condition must be (B, {r0}, {r0}, {COND_CHANNELS}), got {:?}",
                 cond.dims(),
@@ -154,8 +162,9 @@ impl Completer {
                     amodal: px
                         .chunks_exact(TARGET_CHANNELS)
                         .zip(cx.chunks_exact(COND_CHANNELS))
-                        .map(|(p, c)| p[3] > 0.0 || c[3] > 0.0)
+                        .map(|(p, c)| p[3] > self.mask_threshold || c[3] > 0.0)
                         .collect(),
+                    mask_score: px.chunks_exact(TARGET_CHANNELS).map(|p| p[3]).collect(),
                     depth_rel: px
                         .chunks_exact(TARGET_CHANNELS)
                         .map(|p| p[4] / DEPTH_SCALE)

@@ -344,9 +344,25 @@ impl GlDot {
         })
     }
 
+    /// The first `cond_channels` channels of a condition image: data carries every channel we
+    /// know of, and a model trained before a channel was added reads the ones it knows.
+    fn own_channels(&self, cond_image: &Tensor) -> Result<Tensor> {
+        let c = cond_image.dim(3)?;
+        if c == self.config.cond_channels {
+            Ok(cond_image.clone())
+        } else if c > self.config.cond_channels {
+            cond_image.narrow(3, 0, self.config.cond_channels)
+        } else {
+            candle_core::bail!(
+                "condition has {c} channels, the model needs {}",
+                self.config.cond_channels
+            )
+        }
+    }
+
     /// Condition tokens of a batch of conditioning images.
     pub fn encode(&self, cond_image: &Tensor) -> Result<Tensor> {
-        self.encoder.forward(cond_image)
+        self.encoder.forward(&self.own_channels(cond_image)?)
     }
 
     /// Predicted velocity for noisy targets `x_t` (B, R, R, target_channels) at times `t` (B,),
@@ -359,7 +375,7 @@ impl GlDot {
         cond_tokens: &Tensor,
     ) -> Result<Tensor> {
         let cfg = &self.config;
-        let x = Tensor::cat(&[x_t, cond_image], 3)?;
+        let x = Tensor::cat(&[x_t, &self.own_channels(cond_image)?], 3)?;
         let mut x = self
             .x_embed
             .forward(&patchify(&x, cfg.patch)?)?

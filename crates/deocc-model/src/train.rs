@@ -67,6 +67,10 @@ pub struct TrainConfig {
     /// to mean 1; empty = uniform. The mask is what the amodal IoU and the fusion use, and it is one
     /// channel of six, so weighting it up spends the model's capacity where it is measured.
     pub channel_loss_weights: Vec<f32>,
+    /// Inference, not training: the mask channel's threshold for "inside" (in [-1, 1]; 0 is the
+    /// middle). Chosen on validation pairs after training (`deocc eval amodal --split val
+    /// --mask-thresholds ...`) and shipped with the weights in train.json.
+    pub mask_threshold: f32,
 }
 
 impl Default for TrainConfig {
@@ -85,6 +89,7 @@ impl Default for TrainConfig {
             cross_view_probability: 0.5,
             checkpoint_every: 200,
             channel_loss_weights: Vec::new(),
+            mask_threshold: 0.0,
         }
     }
 }
@@ -321,7 +326,12 @@ impl Trainer {
             let w = tensors
                 .get(name)
                 .ok_or_else(|| file_err(weights, format!("missing tensor {name}")))?;
-            let w = w.to_dtype(DType::F32)?;
+            let mut w = w.to_dtype(DType::F32)?;
+            if w.shape() != var.shape() {
+                if let Some(grown) = self.grow_input_channels(name, &w)? {
+                    w = grown;
+                }
+            }
             if w.shape() != var.shape() {
                 return Err(file_err(
                     weights,
@@ -336,6 +346,29 @@ impl Trainer {
             self.ema.insert(name.clone(), w.copy()?.detach());
         }
         Ok(())
+    }
+
+    /// Warm start across an added condition channel: the two patch embeddings take
+    /// (patch, patch, channels) inputs, channel fastest; weights of a model with fewer channels
+    /// are copied in with zero columns for the new (last) channels, so the grown model computes
+    /// exactly what the old one did until training teaches it to use them.
+    fn grow_input_channels(&self, name: &str, w: &Tensor) -> Result<Option<Tensor>> {
+        let m = &self.config.model;
+        let (patch_area, new_channels) = match name {
+            "x_embedder.weight" => (m.patch * m.patch, m.target_channels + m.cond_channels),
+            "cond_encoder.embed.weight" => (m.cond_patch * m.cond_patch, m.cond_channels),
+            _ => return Ok(None),
+        };
+        let (d, k) = w.dims2()?;
+        if d != m.width || k % patch_area != 0 || k / patch_area >= new_channels {
+            return Ok(None);
+        }
+        let old_channels = k / patch_area;
+        Ok(Some(
+            w.reshape((d, patch_area, old_channels))?
+                .pad_with_zeros(2, 0, new_channels - old_channels)?
+                .reshape((d, patch_area * new_channels))?,
+        ))
     }
 
     /// Saves a complete checkpoint; `state.json` goes last so a crash mid-way leaves the previous

@@ -340,11 +340,59 @@ fn softmax_attention_switch_builds_and_runs() {
     let (m, _) = model(&cfg, 9);
     let mut g = rng(10);
     let x = randn((1, 16, 16, cfg.target_channels), &mut g, &Device::Cpu).unwrap();
-    let c = randn((1, 16, 16, 5), &mut g, &Device::Cpu).unwrap();
+    let c = randn((1, 16, 16, cfg.cond_channels), &mut g, &Device::Cpu).unwrap();
     let tok = m.encode(&c).unwrap();
     let v = m
         .forward(&x, &Tensor::new(&[0.5f32], &Device::Cpu).unwrap(), &c, &tok)
         .unwrap();
     assert_eq!(v.dims(), &[1, 16, 16, cfg.target_channels]);
     assert!(v.mean(D::Minus1).is_ok());
+}
+
+#[test]
+fn a_model_grown_by_a_condition_channel_computes_what_the_old_one_did() {
+    let data = tiny_pairs();
+    let old_dir = tempfile::tempdir().unwrap();
+    let new_dir = tempfile::tempdir().unwrap();
+    let old_model = GlDotConfig {
+        cond_channels: 5,
+        ..GlDotConfig::tiny()
+    };
+    let cfg = |model: GlDotConfig| TrainConfig {
+        model,
+        batch_size: 2,
+        steps: 2,
+        ..TrainConfig::default()
+    };
+    // A 5-channel model with trained (non-initial) weights...
+    let mut old = Trainer::open(old_dir.path(), cfg(old_model), &Device::Cpu).unwrap();
+    for _ in 0..2 {
+        old.step(&data).unwrap();
+    }
+    old.checkpoint(old_dir.path()).unwrap();
+    // ... warm-starts a 6-channel one.
+    let mut grown = Trainer::open(new_dir.path(), cfg(GlDotConfig::tiny()), &Device::Cpu).unwrap();
+    grown
+        .init_from(&old_dir.path().join("ema.safetensors"))
+        .unwrap();
+    grown.checkpoint(new_dir.path()).unwrap();
+    let (_, cond) = data.batch(&[0, 1], &[false, false], &Device::Cpu).unwrap();
+    assert_eq!(cond.dim(3).unwrap(), 6);
+    let a = Completer::from_dir(old_dir.path(), &Device::Cpu)
+        .unwrap()
+        .complete(&cond, &[], 0.0, 2, 7)
+        .unwrap();
+    let b = Completer::from_dir(new_dir.path(), &Device::Cpu)
+        .unwrap()
+        .complete(&cond, &[], 0.0, 2, 7)
+        .unwrap();
+    for (x, y) in a.iter().zip(&b) {
+        let d = x
+            .mask_score
+            .iter()
+            .zip(&y.mask_score)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0f32, f32::max);
+        assert!(d < 1e-4, "grown model differs by {d}");
+    }
 }

@@ -23,7 +23,8 @@ pub struct Crop {
     pub y0: f32,
     pub side: f32,
     pub resolution: usize,
-    /// (R*R*5) model condition: RGB, visible mask, visible relative depth.
+    /// (R*R*6) model condition: RGB, visible mask, visible relative depth, observed relative depth
+    /// of the whole crop (clamped to [-1, 1], 0 where unmeasured), as in the training pairs.
     pub cond: Vec<f32>,
     pub visible: Vec<bool>,
     /// Observed metric depth per crop pixel (0 = none or outside the image).
@@ -95,6 +96,11 @@ pub fn make_crop(frame: &Frame, view: usize, id: u16, resolution: usize) -> Opti
         } else {
             0.0
         };
+        c[5] = if observed[k] > 0.0 {
+            ((observed[k] - m) / scale_m).clamp(-1.0, 1.0) * DEPTH_SCALE
+        } else {
+            0.0
+        };
     }
     Some(Crop {
         instance_id: id,
@@ -110,7 +116,7 @@ pub fn make_crop(frame: &Frame, view: usize, id: u16, resolution: usize) -> Opti
     })
 }
 
-/// Stacks crops' conditions into a (B, R, R, 5) tensor.
+/// Stacks crops' conditions into a (B, R, R, COND_CHANNELS) tensor.
 pub fn cond_tensor(crops: &[&Crop], device: &Device) -> candle_core::Result<Tensor> {
     let r = crops.first().map(|c| c.resolution).unwrap_or(0);
     let data: Vec<f32> = crops.iter().flat_map(|c| c.cond.iter().copied()).collect();

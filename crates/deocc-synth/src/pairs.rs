@@ -5,6 +5,9 @@
 //! - `crop_rgb`: the scene as seen in the crop (occluders included),
 //! - `visible_mask`: where the object is visible,
 //! - `visible_depth`: observed depth on the visible mask, relative (below),
+//! - `scene_depth`: observed depth of everything in the crop, relative and clamped to [-1, 1]
+//!   (0 where nothing was measured): where the scene is in front of the object, the object may
+//!   continue hidden; where it is behind, it cannot (it would be seen),
 //! - `whole_rgb`: the object alone on a white background,
 //! - `amodal_mask`: the whole object's silhouette,
 //! - `whole_depth`: the whole object's depth, relative;
@@ -67,6 +70,7 @@ pub struct PairSet {
     pub crop_rgb: Vec<u8>,       // (N, R, R, 3)
     pub visible_mask: Vec<u8>,   // (N, R, R) 0/1
     pub visible_depth: Vec<f32>, // (N, R, R)
+    pub scene_depth: Vec<f32>,   // (N, R, R)
     pub whole_rgb: Vec<u8>,      // (N, R, R, 3)
     pub amodal_mask: Vec<u8>,    // (N, R, R) 0/1
     pub whole_depth: Vec<f32>,   // (N, R, R)
@@ -97,6 +101,7 @@ impl PairSet {
         self.visible_mask.truncate(n * px);
         self.amodal_mask.truncate(n * px);
         self.visible_depth.truncate(n * px);
+        self.scene_depth.truncate(n * px);
         self.whole_depth.truncate(n * px);
         self.whole_back_depth.truncate(n * px);
         self.group.truncate(n);
@@ -110,6 +115,7 @@ impl PairSet {
         self.crop_rgb.extend_from_slice(&o.crop_rgb);
         self.visible_mask.extend_from_slice(&o.visible_mask);
         self.visible_depth.extend_from_slice(&o.visible_depth);
+        self.scene_depth.extend_from_slice(&o.scene_depth);
         self.whole_rgb.extend_from_slice(&o.whole_rgb);
         self.amodal_mask.extend_from_slice(&o.amodal_mask);
         self.whole_depth.extend_from_slice(&o.whole_depth);
@@ -278,6 +284,13 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             out.whole_rgb.extend_from_slice(whole.as_raw());
             out.visible_mask.extend(visible.iter().map(|&b| b as u8));
             out.amodal_mask.extend(amodal.iter().map(|&b| b as u8));
+            out.scene_depth.extend(full.depth_m.iter().map(|&d| {
+                if d > 0.0 {
+                    ((d - m) / s).clamp(-1.0, 1.0)
+                } else {
+                    0.0
+                }
+            }));
             out.visible_depth.extend((0..n).map(|i| {
                 if visible[i] {
                     (full.depth_m[i] - m) / s
@@ -375,6 +388,12 @@ pub fn save_pairs(path: &Path, set: &PairSet) -> Result<()> {
             bytes_of_f32(&set.visible_depth),
         ),
         (
+            "scene_depth",
+            Dtype::F32,
+            vec![n, r, r],
+            bytes_of_f32(&set.scene_depth),
+        ),
+        (
             "whole_rgb",
             Dtype::U8,
             vec![n, r, r, 3],
@@ -466,6 +485,17 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
         crop_rgb: crop_rgb.to_vec(),
         visible_mask: get("visible_mask", Dtype::U8)?.1.to_vec(),
         visible_depth: f32s(get("visible_depth", Dtype::F32)?.1),
+        scene_depth: f32s(
+            get("scene_depth", Dtype::F32)
+                .map_err(|_| {
+                    err(
+                        "missing tensor 'scene_depth': pairs from before it was added; \
+                         make them again with `deocc synth pairs`"
+                            .into(),
+                    )
+                })?
+                .1,
+        ),
         whole_rgb: get("whole_rgb", Dtype::U8)?.1.to_vec(),
         amodal_mask: get("amodal_mask", Dtype::U8)?.1.to_vec(),
         whole_depth: f32s(get("whole_depth", Dtype::F32)?.1),
@@ -484,6 +514,7 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
         && set.amodal_mask.len() == n * px
         && set.whole_rgb.len() == n * px * 3
         && set.visible_depth.len() == n * px
+        && set.scene_depth.len() == n * px
         && set.whole_depth.len() == n * px
         && set.whole_back_depth.len() == n * px
         && set.group.len() == n
