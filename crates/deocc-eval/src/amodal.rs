@@ -89,6 +89,15 @@ pub struct AmodalReport {
     pub miou_by_steps: BTreeMap<usize, f64>,
     pub miou_baseline_visible: f64,
     pub miou_baseline_convex_hull: f64,
+    /// The convex hull kept only where the observed scene is in front of the object (where it is
+    /// behind, the object would be seen): a free-space-aware geometric baseline.
+    pub miou_baseline_convex_hull_in_front: f64,
+    /// The model's mask (main steps) united with that baseline.
+    pub miou_model_or_hull_in_front: f64,
+    /// Whether the completer applied its free-space constraint, and the main-steps mIoU with it
+    /// switched off (the model's raw mask).
+    pub free_space_constraint: bool,
+    pub miou_main_steps_without_free_space: f64,
     pub main_steps: usize,
     /// The completer's mask threshold, and the main-steps mIoU at other thresholds.
     pub mask_threshold: f32,
@@ -118,6 +127,7 @@ fn complete_all(
     steps: usize,
     rho: f32,
     opts: &AmodalEvalOptions,
+    free_space: bool,
 ) -> candle_core::Result<Vec<Completion>> {
     let mut out = Vec::with_capacity(idx.len());
     let dev = c.device.clone();
@@ -138,7 +148,7 @@ fn complete_all(
             Vec::new()
         };
         out.extend(
-            c.complete(&cond, &others, rho, steps, opts.seed)
+            c.complete_with(&cond, &others, rho, steps, opts.seed, free_space)
                 .map_err(|e| candle_core::Error::msg(e.to_string()))?,
         );
     }
@@ -161,14 +171,23 @@ pub fn evaluate_amodal(
     let truth: Vec<Vec<bool>> = idx.iter().map(|&i| mask_of(data.amodal_mask(i))).collect();
     let visible: Vec<Vec<bool>> = idx.iter().map(|&i| mask_of(data.visible_mask(i))).collect();
     let iou_visible: Vec<f64> = (0..n).map(|k| iou(&visible[k], &truth[k])).collect();
-    let iou_hull: Vec<f64> = (0..n)
-        .map(|k| iou(&convex_hull_mask(&visible[k], r), &truth[k]))
+    let hulls: Vec<Vec<bool>> = (0..n).map(|k| convex_hull_mask(&visible[k], r)).collect();
+    let iou_hull: Vec<f64> = (0..n).map(|k| iou(&hulls[k], &truth[k])).collect();
+    let hull_in_front: Vec<Vec<bool>> = idx
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| {
+            let scene = &data.set.scene_depth[i * r * r..(i + 1) * r * r];
+            (0..r * r)
+                .map(|p| visible[k][p] || (hulls[k][p] && scene[p] < 0.0))
+                .collect()
+        })
         .collect();
 
     let mut miou_by_steps = BTreeMap::new();
     let mut main: Option<(Vec<f64>, Vec<Completion>)> = None;
     for &s in &opts.steps {
-        let comp = complete_all(c, data, &idx, s, 0.0, opts)?;
+        let comp = complete_all(c, data, &idx, s, 0.0, opts, c.free_space)?;
         let ious: Vec<f64> = (0..n).map(|k| iou(&comp[k].amodal, &truth[k])).collect();
         miou_by_steps.insert(s, mean(ious.iter().copied()));
         if s == opts.main_steps {
@@ -178,12 +197,17 @@ pub fn evaluate_amodal(
     let (main_iou, main_comp) = match main {
         Some(m) => m,
         None => {
-            let comp = complete_all(c, data, &idx, opts.main_steps, 0.0, opts)?;
+            let comp = complete_all(c, data, &idx, opts.main_steps, 0.0, opts, c.free_space)?;
             (
                 (0..n).map(|k| iou(&comp[k].amodal, &truth[k])).collect(),
                 comp,
             )
         }
+    };
+    // The same completions without the free-space constraint (same seed, same noise).
+    let miou_main_steps_without_free_space = {
+        let comp = complete_all(c, data, &idx, opts.main_steps, 0.0, opts, false)?;
+        mean((0..n).map(|k| iou(&comp[k].amodal, &truth[k])))
     };
     let miou_by_mask_threshold = opts
         .mask_thresholds
@@ -221,7 +245,15 @@ pub fn evaluate_amodal(
         .copied()
         .filter(|&i| !data.other_views(i).is_empty())
         .collect();
-    let with_rho = complete_all(c, data, &multi, opts.main_steps, opts.rho, opts)?;
+    let with_rho = complete_all(
+        c,
+        data,
+        &multi,
+        opts.main_steps,
+        opts.rho,
+        opts,
+        c.free_space,
+    )?;
     let pos: BTreeMap<usize, usize> = idx.iter().enumerate().map(|(k, &i)| (i, k)).collect();
     let miou_rho = mean(
         multi
@@ -317,6 +349,18 @@ pub fn evaluate_amodal(
         miou_by_steps,
         miou_baseline_visible: mean(iou_visible.iter().copied()),
         miou_baseline_convex_hull: mean(iou_hull.iter().copied()),
+        free_space_constraint: c.free_space,
+        miou_main_steps_without_free_space,
+        miou_baseline_convex_hull_in_front: mean((0..n).map(|k| iou(&hull_in_front[k], &truth[k]))),
+        miou_model_or_hull_in_front: mean((0..n).map(|k| {
+            let united: Vec<bool> = main_comp[k]
+                .amodal
+                .iter()
+                .zip(&hull_in_front[k])
+                .map(|(&a, &b)| a || b)
+                .collect();
+            iou(&united, &truth[k])
+        })),
         main_steps: opts.main_steps,
         mask_threshold: c.mask_threshold,
         miou_by_mask_threshold,

@@ -14,12 +14,20 @@ use crate::model::{mix_views, GlDot};
 use crate::train::{read_json, Result, TrainConfig, TrainError};
 use rand::SeedableRng;
 
+/// Margin of the free-space constraint, in relative depth (crop widths).
+pub const FREE_SPACE_MARGIN: f32 = 0.05;
+
 /// A loaded model ready to sample.
 pub struct Completer {
     pub model: GlDot,
     pub timestep_shift: f32,
     /// A pixel is in the amodal mask when the mask channel (in [-1, 1]) is above this.
     pub mask_threshold: f32,
+    /// Free-space constraint: a hidden pixel can belong to the object only where the observed
+    /// scene is in front of the object's predicted near side (plus [`FREE_SPACE_MARGIN`]); where
+    /// the scene is seen behind it, the object would have been seen. Uses the condition's
+    /// scene-depth channel (index 5).
+    pub free_space: bool,
     pub device: Device,
 }
 
@@ -30,7 +38,8 @@ pub struct Completion {
     pub rgb: Vec<u8>,
     /// (R*R) amodal mask: the mask channel above the completer's threshold, or visible.
     pub amodal: Vec<bool>,
-    /// (R*R) the mask channel itself, in [-1, 1] roughly (for choosing the threshold).
+    /// (R*R) the mask channel itself, in [-1, 1] roughly (for choosing the threshold); -inf where
+    /// the free-space constraint rules the object out.
     pub mask_score: Vec<f32>,
     /// (R*R) relative depth of the near side (the training pairs' units), meaningful inside `amodal`.
     pub depth_rel: Vec<f32>,
@@ -64,6 +73,7 @@ impl Completer {
             model,
             timestep_shift,
             mask_threshold: 0.0,
+            free_space: true,
             device: device.clone(),
         })
     }
@@ -95,6 +105,19 @@ impl Completer {
         rho: f32,
         steps: usize,
         seed: u64,
+    ) -> Result<Vec<Completion>> {
+        self.complete_with(cond, other_views, rho, steps, seed, self.free_space)
+    }
+
+    /// [`Completer::complete`] with the free-space constraint on or off.
+    pub fn complete_with(
+        &self,
+        cond: &Tensor,
+        other_views: &[Vec<Tensor>],
+        rho: f32,
+        steps: usize,
+        seed: u64,
+        free_space: bool,
     ) -> Result<Vec<Completion>> {
         let (b, r, _, c) = cond.dims4()?;
         if c != COND_CHANNELS || r != self.resolution() {
@@ -149,6 +172,18 @@ impl Completer {
             .map(|k| {
                 let px = &data[k * n * TARGET_CHANNELS..(k + 1) * n * TARGET_CHANNELS];
                 let cx = &cond_data[k * n * COND_CHANNELS..(k + 1) * n * COND_CHANNELS];
+                let mask_score: Vec<f32> = px
+                    .chunks_exact(TARGET_CHANNELS)
+                    .zip(cx.chunks_exact(COND_CHANNELS))
+                    .map(|(p, c)| {
+                        let behind = c[5] > p[4] + FREE_SPACE_MARGIN * DEPTH_SCALE;
+                        if free_space && c[3] <= 0.0 && behind {
+                            f32::NEG_INFINITY
+                        } else {
+                            p[3]
+                        }
+                    })
+                    .collect();
                 Completion {
                     rgb: px
                         .chunks_exact(TARGET_CHANNELS)
@@ -159,12 +194,12 @@ impl Completer {
                         })
                         .collect(),
                     // The amodal mask contains the visible mask by definition.
-                    amodal: px
-                        .chunks_exact(TARGET_CHANNELS)
+                    amodal: mask_score
+                        .iter()
                         .zip(cx.chunks_exact(COND_CHANNELS))
-                        .map(|(p, c)| p[3] > self.mask_threshold || c[3] > 0.0)
+                        .map(|(&m, c)| m > self.mask_threshold || c[3] > 0.0)
                         .collect(),
-                    mask_score: px.chunks_exact(TARGET_CHANNELS).map(|p| p[3]).collect(),
+                    mask_score,
                     depth_rel: px
                         .chunks_exact(TARGET_CHANNELS)
                         .map(|p| p[4] / DEPTH_SCALE)

@@ -396,3 +396,55 @@ fn a_model_grown_by_a_condition_channel_computes_what_the_old_one_did() {
         assert!(d < 1e-4, "grown model differs by {d}");
     }
 }
+
+#[test]
+fn free_space_constraint_keeps_hidden_pixels_only_where_the_scene_is_in_front() {
+    use deocc_model::data::{COND_CHANNELS, DEPTH_SCALE};
+    use deocc_model::infer::FREE_SPACE_MARGIN;
+    let dir = tempfile::tempdir().unwrap();
+    let data = tiny_pairs();
+    let cfg = TrainConfig {
+        model: GlDotConfig::tiny(),
+        batch_size: 2,
+        steps: 1,
+        ..TrainConfig::default()
+    };
+    let mut trainer = Trainer::open(dir.path(), cfg, &Device::Cpu).unwrap();
+    trainer.step(&data).unwrap();
+    trainer.checkpoint(dir.path()).unwrap();
+    let mut completer = Completer::from_dir(dir.path(), &Device::Cpu).unwrap();
+    // A threshold every score passes, so that only the constraint decides.
+    completer.mask_threshold = f32::MIN;
+    let idx: Vec<usize> = (0..data.len().min(4)).collect();
+    let (_, cond) = data
+        .batch(&idx, &vec![false; idx.len()], &Device::Cpu)
+        .unwrap();
+    let with = completer.complete(&cond, &[], 0.0, 2, 3).unwrap();
+    let without = completer
+        .complete_with(&cond, &[], 0.0, 2, 3, false)
+        .unwrap();
+    let cond = cond.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let n = data.set.pixels();
+    let (mut ruled_out, mut kept) = (0, 0);
+    for (k, (a, b)) in with.iter().zip(&without).enumerate() {
+        for p in 0..n {
+            let c = &cond[(k * n + p) * COND_CHANNELS..(k * n + p + 1) * COND_CHANNELS];
+            assert!(
+                b.amodal[p],
+                "the lowest threshold keeps every pixel without the constraint"
+            );
+            let visible = c[3] > 0.0;
+            let behind = c[5] > a.depth_rel[p] * DEPTH_SCALE + FREE_SPACE_MARGIN * DEPTH_SCALE;
+            assert_eq!(a.amodal[p], visible || !behind, "pair {k} pixel {p}");
+            if a.amodal[p] {
+                kept += 1;
+            } else {
+                ruled_out += 1;
+            }
+        }
+    }
+    assert!(
+        ruled_out > 0 && kept > 0,
+        "{ruled_out} ruled out, {kept} kept"
+    );
+}
