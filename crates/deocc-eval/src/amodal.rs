@@ -173,16 +173,7 @@ pub fn evaluate_amodal(
     let iou_visible: Vec<f64> = (0..n).map(|k| iou(&visible[k], &truth[k])).collect();
     let hulls: Vec<Vec<bool>> = (0..n).map(|k| convex_hull_mask(&visible[k], r)).collect();
     let iou_hull: Vec<f64> = (0..n).map(|k| iou(&hulls[k], &truth[k])).collect();
-    let hull_in_front: Vec<Vec<bool>> = idx
-        .iter()
-        .enumerate()
-        .map(|(k, &i)| {
-            let scene = &data.set.scene_depth[i * r * r..(i + 1) * r * r];
-            (0..r * r)
-                .map(|p| visible[k][p] || (hulls[k][p] && scene[p] < 0.0))
-                .collect()
-        })
-        .collect();
+    let hull_in_front: Vec<Vec<bool>> = idx.iter().map(|&i| data.hull_prior(i)).collect();
 
     let mut miou_by_steps = BTreeMap::new();
     let mut main: Option<(Vec<f64>, Vec<Completion>)> = None;

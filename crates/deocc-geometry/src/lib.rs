@@ -16,6 +16,7 @@ pub mod cloud;
 pub mod depth;
 pub mod error;
 pub mod knn;
+pub mod mask2d;
 pub mod metrics;
 pub mod normals;
 pub mod robust;

@@ -5,19 +5,34 @@
 //! [`DEPTH_SCALE`]. Conditioning channels: crop RGB, visible mask, visible relative
 //! depth, and the whole crop's observed relative depth (clamped to [-1, 1]), scaled the same way.
 //! The last one tells the model where something is in front of the object (it may continue
-//! there) and where the scene is behind it (it cannot: it would be seen).
+//! there) and where the scene is behind it (it cannot: it would be seen). The seventh is a
+//! geometric prior, [`hull_prior`]: the visible mask's convex hull where the scene is in front.
+//! Alone it beats the model's own masks of the sixth-channel generation (0.789 against 0.696
+//! mIoU on held-out pairs), so the model is given it and learns what to add and remove.
 
 use std::collections::HashMap;
 use std::path::Path;
 
 use candle_core::{Device, Result, Tensor};
+use deocc_geometry::mask2d::convex_hull_mask;
 use deocc_synth::pairs::{load_pairs, PairSet};
 use rand::Rng;
 
 /// Relative depth is (d - median visible) / crop width: about +-0.5; doubled to fill [-1, 1].
 pub const DEPTH_SCALE: f32 = 2.0;
 pub const TARGET_CHANNELS: usize = 6;
-pub const COND_CHANNELS: usize = 6;
+pub const COND_CHANNELS: usize = 7;
+
+/// The geometric amodal prior: the visible mask, plus the pixels of its convex hull where the
+/// observed scene is nearer than the object's median visible depth (`scene_rel_depth < 0`) —
+/// where something occludes the object, so a hidden part can be there without being seen.
+/// `scene_rel_depth` is 0 where nothing is observed (outside the image, missing depth).
+pub fn hull_prior(visible: &[bool], scene_rel_depth: &[f32], r: usize) -> Vec<bool> {
+    let hull = convex_hull_mask(visible, r);
+    (0..r * r)
+        .map(|p| visible[p] || (hull[p] && scene_rel_depth[p] < 0.0))
+        .collect()
+}
 
 /// Pairs plus an index of which pairs show the same object.
 pub struct PairData {
@@ -79,6 +94,7 @@ impl PairData {
     fn write_pair(&self, i: usize, flip: bool, target: &mut [f32], cond: &mut [f32]) {
         let r = self.resolution();
         let s = &self.set;
+        let prior = self.hull_prior(i);
         for v in 0..r {
             for u in 0..r {
                 let src_u = if flip { r - 1 - u } else { u };
@@ -94,6 +110,7 @@ impl PairData {
                 cond[o * COND_CHANNELS + 3] = 2.0 * s.visible_mask[p] as f32 - 1.0;
                 cond[o * COND_CHANNELS + 4] = s.visible_depth[p] * DEPTH_SCALE;
                 cond[o * COND_CHANNELS + 5] = s.scene_depth[p] * DEPTH_SCALE;
+                cond[o * COND_CHANNELS + 6] = if prior[v * r + src_u] { 1.0 } else { -1.0 };
             }
         }
     }
@@ -123,6 +140,17 @@ impl PairData {
             Tensor::from_vec(target, (b, r, r, TARGET_CHANNELS), device)?,
             Tensor::from_vec(cond, (b, r, r, COND_CHANNELS), device)?,
         ))
+    }
+
+    /// [`hull_prior`] of pair `i` (unmirrored).
+    pub fn hull_prior(&self, i: usize) -> Vec<bool> {
+        let n = self.set.pixels();
+        let visible: Vec<bool> = self.visible_mask(i).iter().map(|&m| m > 0).collect();
+        hull_prior(
+            &visible,
+            &self.set.scene_depth[i * n..(i + 1) * n],
+            self.resolution(),
+        )
     }
 
     pub fn amodal_mask(&self, i: usize) -> &[u8] {

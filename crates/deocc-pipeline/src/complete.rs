@@ -5,7 +5,7 @@
 use candle_core::{Device, Tensor};
 use deocc_geometry::robust::{huber_affine_fit, AffineFit, HuberOptions};
 use deocc_geometry::PointCloud;
-use deocc_model::data::{COND_CHANNELS, DEPTH_SCALE};
+use deocc_model::data::{hull_prior, COND_CHANNELS, DEPTH_SCALE};
 use deocc_model::infer::Completion;
 use nalgebra::Point3;
 use serde::Serialize;
@@ -31,6 +31,9 @@ pub struct Crop {
     pub observed_depth_m: Vec<f32>,
     /// Crop pixel -> image pixel index (None outside the image).
     pub source_pixel: Vec<Option<usize>>,
+    /// Metres per unit of relative depth: the crop's width at the object's median visible depth.
+    /// The model's relative depth is in these units, so the Huber fit's scale should be near it.
+    pub metric_scale_m: f32,
 }
 
 /// Builds the crop of `id` in `frame`; `None` if the instance is not visible there.
@@ -79,6 +82,16 @@ pub fn make_crop(frame: &Frame, view: usize, id: u16, resolution: usize) -> Opti
     vis_depths.select_nth_unstable_by(mid, f32::total_cmp);
     let m = vis_depths[mid];
     let scale_m = side * m / frame.camera.intrinsics.fx();
+    let scene_rel: Vec<f32> = (0..n)
+        .map(|k| {
+            if observed[k] > 0.0 {
+                ((observed[k] - m) / scale_m).clamp(-1.0, 1.0)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let prior = hull_prior(&visible, &scene_rel, r);
     let mut cond = vec![0f32; n * COND_CHANNELS];
     for k in 0..n {
         let c = &mut cond[k * COND_CHANNELS..(k + 1) * COND_CHANNELS];
@@ -96,11 +109,8 @@ pub fn make_crop(frame: &Frame, view: usize, id: u16, resolution: usize) -> Opti
         } else {
             0.0
         };
-        c[5] = if observed[k] > 0.0 {
-            ((observed[k] - m) / scale_m).clamp(-1.0, 1.0) * DEPTH_SCALE
-        } else {
-            0.0
-        };
+        c[5] = scene_rel[k] * DEPTH_SCALE;
+        c[6] = if prior[k] { 1.0 } else { -1.0 };
     }
     Some(Crop {
         instance_id: id,
@@ -113,6 +123,7 @@ pub fn make_crop(frame: &Frame, view: usize, id: u16, resolution: usize) -> Opti
         visible,
         observed_depth_m: observed,
         source_pixel,
+        metric_scale_m: scale_m,
     })
 }
 
@@ -131,6 +142,8 @@ pub struct CompletionRecord {
     pub visible_px: usize,
     pub amodal_px: usize,
     pub new_points: usize,
+    /// The crop's metric scale ([`Crop::metric_scale_m`]), to compare with the fit's.
+    pub metric_scale_m: f32,
     pub fit: Option<AffineFit>,
     pub accepted: bool,
     pub reason: String,
@@ -160,6 +173,7 @@ pub fn fuse_completion(
         visible_px: vis.len(),
         amodal_px,
         new_points: 0,
+        metric_scale_m: crop.metric_scale_m,
         fit: None,
         accepted: false,
         reason: String::new(),

@@ -16,6 +16,7 @@ use deocc_geometry::normals::smallest_eigenvector;
 use deocc_geometry::PointCloud;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
+use crate::carve::hidden_in_views;
 use crate::input::SceneInput;
 
 /// `generated` code of points filled in on planes (GL-DoT's points are 1).
@@ -274,30 +275,4 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
     out.colors = Some(colors);
     out.instance = Some(ids);
     out
-}
-
-/// Every view that has a measurement where `p` projects sees something in front of it.
-fn hidden_in_views(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -> bool {
-    let mut hidden = false;
-    for (f, proj) in scene.frames.iter().zip(projectors) {
-        let Some((x, y, z)) = proj.project(p) else {
-            continue;
-        };
-        let (w, h) = (f.depth.width() as f32, f.depth.height() as f32);
-        if x < 0.0 || y < 0.0 || x >= w || y >= h {
-            continue;
-        }
-        let d = f.depth.data()[y as usize * w as usize + x as usize];
-        if d <= 0.0 {
-            continue;
-        }
-        let tol = 0.02 + 0.01 * z;
-        if d < z - tol {
-            hidden = true;
-        } else {
-            // The sensor saw it (observed already) or saw through it (free space).
-            return false;
-        }
-    }
-    hidden
 }

@@ -204,6 +204,11 @@ fn find_spot(
 /// Room half-size: the floor spans [-ROOM, ROOM]^2; walls stand at x = ROOM and y = ROOM.
 const ROOM: f32 = 2.5;
 
+/// A point inside every generated room (above the floor's centre, below the wall tops). The
+/// room's structure (floor slab, wall slabs) is solid; only its faces towards this point are
+/// surfaces of the scene: the floor's underside and the walls' outsides are not.
+pub const ROOM_INTERIOR: Point3<f32> = Point3::new(0.0, 0.0, 1.0);
+
 pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     let mut objects = Vec::new();

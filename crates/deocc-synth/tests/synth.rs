@@ -231,3 +231,37 @@ fn bench_v1_is_fixed() {
     assert!(p.config.held_out_shapes);
     assert!(preset("bench-v2").is_err());
 }
+
+#[test]
+fn structure_ground_truth_lies_only_on_faces_towards_the_room() {
+    use deocc_synth::scene::ROOM_INTERIOR;
+    let cfg = small_config();
+    let r = render_full_scene(&cfg, 13).unwrap();
+    let gt = &r.ground_truth.cloud;
+    let ids = gt.instance.as_deref().unwrap();
+    let normals = gt.normals.as_deref().unwrap();
+    let structure: Vec<u32> = r
+        .scene
+        .objects
+        .iter()
+        .filter(|o| o.category.is_structure())
+        .map(|o| o.instance_id as u32)
+        .collect();
+    let mut floor_top = 0;
+    for i in 0..gt.len() {
+        if !structure.contains(&ids[i]) {
+            continue;
+        }
+        let p = gt.positions[i];
+        assert!(
+            normals[i].dot(&(ROOM_INTERIOR - p)) > 0.0,
+            "structure point {p:?} faces away from the room"
+        );
+        assert!(p.z > -1e-4, "a point on the floor's underside: {p:?}");
+        floor_top += (p.z.abs() < 1e-4) as usize;
+    }
+    assert!(
+        floor_top > 1000,
+        "the floor's top is sampled ({floor_top} points)"
+    );
+}

@@ -1,0 +1,62 @@
+//! Multi-view free-space carving of generated geometry.
+//!
+//! A point that no input view sees must be hidden in every view: each view with a depth
+//! measurement where the point projects must see something in front of it. If a view measures the
+//! point's own depth, the point is observed already (a generated copy adds nothing); if a view
+//! measures beyond it, the sensor saw through empty space there and the point is wrong. The
+//! completion's own view is checked at fusion time ([`crate::complete::fuse_completion`]); this
+//! test adds the other views, which a segmenter's mistakes (a mask spanning two objects, a
+//! completion running into the background) most often contradict.
+
+use deocc_geometry::camera::Projector;
+use deocc_geometry::PointCloud;
+use nalgebra::Point3;
+use rayon::prelude::*;
+
+use crate::input::SceneInput;
+
+/// Depth tolerance of the test at distance `z` (sensor noise grows with range): a point counts as
+/// hidden behind a measurement only if it is this much farther than it.
+pub fn hidden_tolerance_m(z: f32) -> f32 {
+    0.02 + 0.01 * z
+}
+
+/// Every view that has a measurement where `p` projects sees something in front of it, and at
+/// least one view does.
+pub fn hidden_in_views(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -> bool {
+    let mut hidden = false;
+    for (f, proj) in scene.frames.iter().zip(projectors) {
+        let Some((x, y, z)) = proj.project(p) else {
+            continue;
+        };
+        let (w, h) = (f.depth.width() as f32, f.depth.height() as f32);
+        if x < 0.0 || y < 0.0 || x >= w || y >= h {
+            continue;
+        }
+        let d = f.depth.data()[y as usize * w as usize + x as usize];
+        if d <= 0.0 {
+            continue;
+        }
+        if d < z - hidden_tolerance_m(z) {
+            hidden = true;
+        } else {
+            // The sensor saw it (observed already) or saw through it (free space).
+            return false;
+        }
+    }
+    hidden
+}
+
+/// The points of `cloud` hidden in every view of `scene` (see [`hidden_in_views`]), and how many
+/// were removed.
+pub fn keep_hidden(cloud: &PointCloud, scene: &SceneInput) -> (PointCloud, usize) {
+    let projectors: Vec<Projector> = scene.frames.iter().map(|f| f.camera.projector()).collect();
+    let keep: Vec<bool> = cloud
+        .positions
+        .par_iter()
+        .map(|p| hidden_in_views(p, scene, &projectors))
+        .collect();
+    let kept = cloud.filter(|i| keep[i]);
+    let removed = cloud.len() - kept.len();
+    (kept, removed)
+}
