@@ -370,14 +370,18 @@ fn a_model_grown_by_a_condition_channel_computes_what_the_old_one_did() {
         old.step(&data).unwrap();
     }
     old.checkpoint(old_dir.path()).unwrap();
-    // ... warm-starts a 6-channel one.
+    // ... warm-starts one with every condition channel of today's preset (two zero columns more).
     let mut grown = Trainer::open(new_dir.path(), cfg(GlDotConfig::tiny()), &Device::Cpu).unwrap();
     grown
         .init_from(&old_dir.path().join("ema.safetensors"))
         .unwrap();
     grown.checkpoint(new_dir.path()).unwrap();
     let (_, cond) = data.batch(&[0, 1], &[false, false], &Device::Cpu).unwrap();
-    assert_eq!(cond.dim(3).unwrap(), 6);
+    assert_eq!(cond.dim(3).unwrap(), deocc_model::data::COND_CHANNELS);
+    assert_eq!(
+        GlDotConfig::tiny().cond_channels,
+        deocc_model::data::COND_CHANNELS
+    );
     let a = Completer::from_dir(old_dir.path(), &Device::Cpu)
         .unwrap()
         .complete(&cond, &[], 0.0, 2, 7)
