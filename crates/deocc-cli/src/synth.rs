@@ -101,9 +101,9 @@ impl SceneOptions {
 #[derive(Args)]
 pub struct ScenesArgs {
     /// Number of scenes (scene i has seed SEED + i).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, conflicts_with = "preset")]
     count: usize,
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, conflicts_with = "preset")]
     seed: u64,
     /// A named preset instead of --count/--seed and the scene options: bench-v1, bench-v1-small.
     #[arg(long)]

@@ -11,6 +11,21 @@ pub enum AttentionKind {
     Softmax,
 }
 
+/// The amodal mask the residual model starts from (its output with a zero residual).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MaskPrior {
+    /// The visible mask ("amodal = visible"): what models before the seventh condition channel
+    /// were trained with, hence the default when a stored config does not name one.
+    #[default]
+    Visible,
+    /// The geometric prior of condition channel 6 ([`crate::data::hull_prior`]: the visible
+    /// mask's convex hull where the scene is in front), the best mask measured without a model
+    /// (test mIoU 0.789 against 0.684 for the visible mask). The model then learns corrections
+    /// to a good answer instead of re-deriving it.
+    HullInFront,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GlDotConfig {
     /// Crop side in pixels.
@@ -32,11 +47,14 @@ pub struct GlDotConfig {
     pub cond_patch: usize,
     pub cond_depth: usize,
     /// The denoiser generates the residual over the visible prior (the crop's visible pixels on
-    /// white, the visible mask, the visible depth; see [`crate::data::visible_prior`]) instead of
+    /// white, the visible mask, the visible depth; see [`crate::data::residual_prior`]) instead of
     /// the whole target. The unoccluded part of an object is then zero to generate, and the model
     /// spends its capacity on the hidden part. Older weights were trained without it.
     #[serde(default)]
     pub residual: bool,
+    /// Which mask the residual is added to (RGB and depth priors are always the visible ones).
+    #[serde(default)]
+    pub mask_prior: MaskPrior,
 }
 
 impl GlDotConfig {
@@ -55,6 +73,7 @@ impl GlDotConfig {
             cond_patch: 8,
             cond_depth: 1,
             residual: true,
+            mask_prior: MaskPrior::HullInFront,
         }
     }
 
@@ -73,6 +92,7 @@ impl GlDotConfig {
             cond_patch: 8,
             cond_depth: 2,
             residual: true,
+            mask_prior: MaskPrior::HullInFront,
         }
     }
 
@@ -92,6 +112,7 @@ impl GlDotConfig {
             cond_patch: 8,
             cond_depth: 4,
             residual: true,
+            mask_prior: MaskPrior::HullInFront,
         }
     }
 
@@ -136,6 +157,12 @@ impl GlDotConfig {
         }
         if self.depth == 0 || self.target_channels == 0 {
             return Err("depth and target_channels must be positive".into());
+        }
+        if self.mask_prior == MaskPrior::HullInFront && self.cond_channels < 7 {
+            return Err(format!(
+                "mask_prior hull_in_front reads condition channel 6, but cond_channels is {}",
+                self.cond_channels
+            ));
         }
         Ok(())
     }

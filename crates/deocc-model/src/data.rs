@@ -14,6 +14,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
+use crate::config::MaskPrior;
 use candle_core::{Device, Result, Tensor};
 use deocc_geometry::mask2d::convex_hull_mask;
 use deocc_synth::pairs::{load_pairs, PairSet};
@@ -190,17 +191,22 @@ pub fn shards(dir: &Path, split: &str) -> std::io::Result<Vec<std::path::PathBuf
     Ok(v)
 }
 
-/// The visible prior of a condition batch (B, R, R, >= 5) in target channels (B, R, R, 6): the crop's
-/// RGB on the visible pixels and white elsewhere, the visible mask as the amodal mask, and the
-/// visible depth for both the near and the far side. It is the "amodal = visible" answer: exact on
+/// The prior of a condition batch (B, R, R, 7) in target channels (B, R, R, 6): the crop's RGB on
+/// the visible pixels and white elsewhere, the chosen mask prior as the amodal mask (the visible
+/// mask, channel 3, or the hull-in-front prior, channel 6), and the visible depth for both the
+/// near and the far side. With the visible mask it is the "amodal = visible" answer, exact on
 /// every pixel an occluder does not hide, which is why the residual model generates only the rest.
-pub fn visible_prior(cond: &Tensor) -> Result<Tensor> {
+pub fn residual_prior(cond: &Tensor, mask_prior: MaskPrior) -> Result<Tensor> {
     let rgb = cond.narrow(3, 0, 3)?;
-    let mask = cond.narrow(3, 3, 1)?;
+    let vis_mask = cond.narrow(3, 3, 1)?;
     let depth = cond.narrow(3, 4, 1)?;
-    let vis = ((&mask + 1.0)? * 0.5)?; // {0, 1}
+    let vis = ((&vis_mask + 1.0)? * 0.5)?; // {0, 1}
     let white = (vis.neg()? + 1.0)?;
     let prior_rgb = rgb.broadcast_mul(&vis)?.broadcast_add(&white)?;
     let prior_depth = depth.mul(&vis)?;
+    let mask = match mask_prior {
+        MaskPrior::Visible => vis_mask,
+        MaskPrior::HullInFront => cond.narrow(3, 6, 1)?,
+    };
     Tensor::cat(&[&prior_rgb, &mask, &prior_depth, &prior_depth], 3)
 }

@@ -161,7 +161,7 @@ impl Completer {
             self.model.forward(x, &tt, cond, &tokens)
         })?;
         let x0 = if self.model.config.residual {
-            (x0 + crate::data::visible_prior(cond)?)?
+            (x0 + crate::data::residual_prior(cond, self.model.config.mask_prior)?)?
         } else {
             x0
         };

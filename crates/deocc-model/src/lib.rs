@@ -20,5 +20,5 @@ pub mod model;
 pub mod ops;
 pub mod train;
 
-pub use config::GlDotConfig;
+pub use config::{GlDotConfig, MaskPrior};
 pub use model::GlDot;

@@ -405,7 +405,7 @@ impl Trainer {
         let flips: Vec<bool> = (0..b).map(|_| rng.random_bool(0.5)).collect();
         let (x0, cond) = data.batch(indices, &flips, &self.device)?;
         let x0 = if cfg.model.residual {
-            (x0 - crate::data::visible_prior(&cond)?)?
+            (x0 - crate::data::residual_prior(&cond, cfg.model.mask_prior)?)?
         } else {
             x0
         };

@@ -1,6 +1,6 @@
 use candle_core::{DType, Device, Tensor, Var, D};
 use candle_nn::{VarBuilder, VarMap};
-use deocc_model::config::{AttentionKind, GlDotConfig};
+use deocc_model::config::{AttentionKind, GlDotConfig, MaskPrior};
 use deocc_model::data::PairData;
 use deocc_model::flow::{euler_sample, interpolate, time_grid};
 use deocc_model::infer::Completer;
@@ -354,8 +354,11 @@ fn a_model_grown_by_a_condition_channel_computes_what_the_old_one_did() {
     let data = tiny_pairs();
     let old_dir = tempfile::tempdir().unwrap();
     let new_dir = tempfile::tempdir().unwrap();
+    // Models before the prior channel started their residual from the visible mask; a warm start
+    // keeps that until it is trained with another prior.
     let old_model = GlDotConfig {
         cond_channels: 5,
+        mask_prior: MaskPrior::Visible,
         ..GlDotConfig::tiny()
     };
     let cfg = |model: GlDotConfig| TrainConfig {
@@ -371,7 +374,11 @@ fn a_model_grown_by_a_condition_channel_computes_what_the_old_one_did() {
     }
     old.checkpoint(old_dir.path()).unwrap();
     // ... warm-starts one with every condition channel of today's preset (two zero columns more).
-    let mut grown = Trainer::open(new_dir.path(), cfg(GlDotConfig::tiny()), &Device::Cpu).unwrap();
+    let grown_model = GlDotConfig {
+        mask_prior: MaskPrior::Visible,
+        ..GlDotConfig::tiny()
+    };
+    let mut grown = Trainer::open(new_dir.path(), cfg(grown_model), &Device::Cpu).unwrap();
     grown
         .init_from(&old_dir.path().join("ema.safetensors"))
         .unwrap();
@@ -399,6 +406,38 @@ fn a_model_grown_by_a_condition_channel_computes_what_the_old_one_did() {
             .fold(0f32, f32::max);
         assert!(d < 1e-4, "grown model differs by {d}");
     }
+}
+
+#[test]
+fn the_residual_starts_from_the_configured_mask_prior() {
+    use deocc_model::data::{residual_prior, COND_CHANNELS};
+    let data = tiny_pairs();
+    let (_, cond) = data.batch(&[0, 1], &[false, false], &Device::Cpu).unwrap();
+    let channel = |t: &Tensor, c: usize| -> Vec<f32> {
+        t.narrow(3, c, 1)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap()
+    };
+    let visible = residual_prior(&cond, MaskPrior::Visible).unwrap();
+    let hull = residual_prior(&cond, MaskPrior::HullInFront).unwrap();
+    assert_eq!(channel(&visible, 3), channel(&cond, 3));
+    assert_eq!(channel(&hull, 3), channel(&cond, COND_CHANNELS - 1));
+    // The prior is a superset of the visible mask, and the pairs have hidden parts it adds.
+    let (v, h) = (channel(&cond, 3), channel(&cond, COND_CHANNELS - 1));
+    assert!(v.iter().zip(&h).all(|(v, h)| *v <= 0.0 || *h > 0.0));
+    assert!(v.iter().zip(&h).any(|(v, h)| *v <= 0.0 && *h > 0.0));
+    // Everything but the mask is the visible prior in both.
+    for c in [0, 1, 2, 4, 5] {
+        assert_eq!(channel(&visible, c), channel(&hull, c));
+    }
+    let too_few = GlDotConfig {
+        cond_channels: 6,
+        ..GlDotConfig::tiny()
+    };
+    assert!(too_few.validate().unwrap_err().contains("channel 6"));
 }
 
 #[test]

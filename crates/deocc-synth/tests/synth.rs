@@ -3,7 +3,7 @@ use std::path::Path;
 
 use deocc_synth::dataset::{preset, render_full_scene, write_scene};
 use deocc_synth::pairs::{load_pairs, save_pairs, scene_pairs, PairConfig};
-use deocc_synth::render::{render_object, render_scene, SceneTriangles};
+use deocc_synth::render::{albedo, light, render_object, render_scene, shade, SceneTriangles};
 use deocc_synth::scene::{generate_scene, SceneConfig};
 use nalgebra::Point3;
 use sha2::{Digest, Sha256};
@@ -111,6 +111,61 @@ fn visible_pixels_lie_on_their_instance_surface_within_2mm() {
         checked += 1;
     }
     assert!(checked > 500);
+}
+
+#[test]
+fn shading_is_lambertian_with_ambient_light_on_the_albedo() {
+    let cfg = small_config();
+    let scene = generate_scene(&cfg, 12).unwrap();
+    let tris = SceneTriangles::new(&scene);
+    let camera = scene.cameras[1];
+    // The whole scene (walls everywhere) and one object alone (mostly background).
+    let object = scene
+        .objects
+        .iter()
+        .position(|o| !o.category.is_structure())
+        .unwrap();
+    let frames = [
+        render_scene(&camera, &scene, &tris),
+        render_object(&camera, &scene, &tris, object),
+    ];
+    let background = [3, 5, 7];
+    let (mut lit, mut empty, mut off_pixels) = (0, 0, 0usize);
+    for frame in &frames {
+        let rgb = shade(frame, &camera, &scene, &tris, background);
+        let (w, eye) = (frame.width as usize, camera.center());
+        for i in (0..frame.depth_m.len()).step_by(5) {
+            let got = rgb.as_raw()[3 * i..3 * i + 3].to_vec();
+            let ti = frame.triangle[i];
+            if ti == u32::MAX {
+                assert_eq!(got, background.to_vec(), "empty pixel {i}");
+                empty += 1;
+                continue;
+            }
+            // The plain per-pixel formula, through the camera's own unprojection.
+            let p = camera.unproject_pixel((i % w) as u32, (i / w) as u32, frame.depth_m[i]);
+            let obj = tris.object[ti as usize] as usize;
+            let mut n = tris.normals[ti as usize];
+            if n.dot(&(eye - p)) < 0.0 {
+                n = -n;
+            }
+            let lum = 0.35 + 0.65 * n.dot(&light()).max(0.0);
+            let a = albedo(&scene.objects[obj].appearance, &p, obj as u32 + 1);
+            let off = (0..3).any(|c| {
+                let want = (a[c] * lum * 255.0).clamp(0.0, 255.0);
+                (got[c] as f32 - want).abs() > 1.0
+            });
+            // Within one level (the rotation is a matrix in the shader, a quaternion here); a pixel
+            // whose point that rounding moves across a stripe or checker edge may differ more.
+            off_pixels += off as usize;
+            lit += 1;
+        }
+    }
+    assert!(lit > 1000 && empty > 0, "{lit} lit, {empty} empty pixels");
+    assert!(
+        off_pixels * 1000 <= lit,
+        "{off_pixels} of {lit} pixels differ from the formula by more than one level"
+    );
 }
 
 #[test]
