@@ -11,11 +11,14 @@
 //!
 //! Tensors are channels-last: images (B, H, W, C), tokens (B, N, D).
 
-use candle_core::{Device, Module, Result, Tensor};
-use candle_nn::{Init, Linear, VarBuilder};
+use candle_core::{Device, Result, Tensor};
+use candle_nn::{Init, VarBuilder};
 
 use crate::config::{AttentionKind, GlDotConfig};
-use crate::ops::{depthwise_conv3x3, layer_norm, linear_attention, modulate, softmax_attention};
+use crate::ops::{
+    bias_add, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear_attention,
+    softmax_attention,
+};
 
 const LN_EPS: f64 = 1e-6;
 const ATTN_EPS: f64 = 1e-6;
@@ -67,8 +70,30 @@ pub fn timestep_embedding(t: &Tensor, dim: usize) -> Result<Tensor> {
     Tensor::cat(&[args.cos()?, args.sin()?], 1)
 }
 
+/// A linear layer (`weight` (out, in), `bias` (out), the names candle_nn uses) whose input is
+/// flattened to rows so the product is one matrix multiplication, and whose bias goes through
+/// [`bias_add`] for a fast gradient.
+struct Linear {
+    weight: Tensor,
+    bias: Tensor,
+}
+
+impl Linear {
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        let dims = x.dims().to_vec();
+        let (inner, out) = (dims[dims.len() - 1], self.weight.dim(0)?);
+        let rows = x.elem_count() / inner.max(1);
+        let y = x.reshape((rows, inner))?.matmul(&self.weight.t()?)?;
+        let mut out_dims = dims;
+        *out_dims
+            .last_mut()
+            .expect("a linear layer's input has a last dimension") = out;
+        bias_add(&y, &self.bias)?.reshape(out_dims)
+    }
+}
+
 fn linear_init(i: usize, o: usize, vb: VarBuilder, std: f64) -> Result<Linear> {
-    let w = vb.get_with_hints(
+    let weight = vb.get_with_hints(
         (o, i),
         "weight",
         Init::Randn {
@@ -76,8 +101,8 @@ fn linear_init(i: usize, o: usize, vb: VarBuilder, std: f64) -> Result<Linear> {
             stdev: std,
         },
     )?;
-    let b = vb.get_with_hints(o, "bias", Init::Const(0.0))?;
-    Ok(Linear::new(w, Some(b)))
+    let bias = vb.get_with_hints(o, "bias", Init::Const(0.0))?;
+    Ok(Linear { weight, bias })
 }
 
 fn xavier(i: usize, o: usize, vb: VarBuilder) -> Result<Linear> {
@@ -188,7 +213,7 @@ impl MixFfn {
         let (b, n, _) = x.dims3()?;
         let y = candle_nn::ops::silu(&self.inverted.forward(x)?)?;
         let y = y.reshape((b, self.grid, self.grid, 2 * self.hidden))?;
-        let y = depthwise_conv3x3(&y, &self.dw_weight)?.broadcast_add(&self.dw_bias)?;
+        let y = bias_add(&depthwise_conv3x3(&y, &self.dw_weight)?, &self.dw_bias)?;
         let y = y.reshape((b, n, 2 * self.hidden))?;
         let (v, gate) = (
             y.narrow(2, 0, self.hidden)?,
@@ -229,10 +254,10 @@ impl Block {
         let part = |i: usize| m.narrow(1, i, 1);
         let (shift_msa, scale_msa, gate_msa) = (part(0)?, part(1)?, part(2)?);
         let (shift_mlp, scale_mlp, gate_mlp) = (part(3)?, part(4)?, part(5)?);
-        let h = modulate(&layer_norm(x, LN_EPS)?, &shift_msa, &scale_msa)?;
+        let h = layer_norm_modulate(x, &shift_msa, &scale_msa, LN_EPS)?;
         let x = (x + self.attn.forward(&h)?.broadcast_mul(&gate_msa)?)?;
         let x = (&x + self.cross.forward(&x, cond)?)?;
-        let h = modulate(&layer_norm(&x, LN_EPS)?, &shift_mlp, &scale_mlp)?;
+        let h = layer_norm_modulate(&x, &shift_mlp, &scale_mlp, LN_EPS)?;
         &x + self.ffn.forward(&h)?.broadcast_mul(&gate_mlp)?
     }
 }
@@ -395,11 +420,7 @@ impl GlDot {
             .final_table
             .unsqueeze(0)?
             .broadcast_add(&t_emb.unsqueeze(1)?)?; // (B, 2, D)
-        let x = modulate(
-            &layer_norm(&x, LN_EPS)?,
-            &m.narrow(1, 0, 1)?,
-            &m.narrow(1, 1, 1)?,
-        )?;
+        let x = layer_norm_modulate(&x, &m.narrow(1, 0, 1)?, &m.narrow(1, 1, 1)?, LN_EPS)?;
         unpatchify(
             &self.final_linear.forward(&x)?,
             cfg.patch,

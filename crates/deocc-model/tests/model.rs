@@ -6,7 +6,9 @@ use deocc_model::flow::{euler_sample, interpolate, time_grid};
 use deocc_model::infer::Completer;
 use deocc_model::init::{randn, SeededInit};
 use deocc_model::model::{patchify, unpatchify, GlDot};
-use deocc_model::ops::{depthwise_conv3x3, linear_attention};
+use deocc_model::ops::{
+    bias_add, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear_attention, modulate,
+};
 use deocc_model::train::{TrainConfig, Trainer};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -143,6 +145,89 @@ fn linear_attention_equals_a_naive_loop() {
             }
         }
     }
+}
+
+#[test]
+fn fused_layer_norm_modulate_matches_the_composed_ops_and_their_gradients() {
+    let dev = Device::Cpu;
+    let (b, n, c) = (3, 5, 24);
+    let mut g = rng(6);
+    // Rows with an offset and a spread, as activations have.
+    let x = (randn((b, n, c), &mut g, &dev).unwrap() * 3.0).unwrap();
+    let x = Var::from_tensor(&(x + 0.7).unwrap()).unwrap();
+    let shift = Var::from_tensor(&randn((b, 1, c), &mut g, &dev).unwrap()).unwrap();
+    let scale = Var::from_tensor(&randn((b, 1, c), &mut g, &dev).unwrap()).unwrap();
+    let ours =
+        layer_norm_modulate(x.as_tensor(), shift.as_tensor(), scale.as_tensor(), 1e-6).unwrap();
+    let reference = modulate(
+        &layer_norm(x.as_tensor(), 1e-6).unwrap(),
+        shift.as_tensor(),
+        scale.as_tensor(),
+    )
+    .unwrap();
+    assert_eq!(ours.dims(), &[b, n, c]);
+    assert!(max_abs_diff(&ours, &reference) < 1e-5);
+    let probe = randn((b, n, c), &mut g, &dev).unwrap();
+    let g_ours = (ours * &probe)
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .backward()
+        .unwrap();
+    let g_ref = (reference * &probe)
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .backward()
+        .unwrap();
+    for var in [&x, &shift, &scale] {
+        let (a, r) = (g_ours.get(var).unwrap(), g_ref.get(var).unwrap());
+        assert_eq!(a.dims(), r.dims());
+        assert!(
+            max_abs_diff(a, r) < 1e-4,
+            "gradient mismatch {}",
+            max_abs_diff(a, r)
+        );
+    }
+    // A shift of the wrong shape is an error, not a silent broadcast.
+    let wrong = Tensor::zeros((b, 2, c), DType::F32, &dev).unwrap();
+    assert!(layer_norm_modulate(x.as_tensor(), &wrong, scale.as_tensor(), 1e-6).is_err());
+}
+
+#[test]
+fn bias_add_matches_broadcast_add_and_its_gradients() {
+    let dev = Device::Cpu;
+    let mut g = rng(8);
+    // More rows than one reduction chunk (256), so the chunked gradient sum is exercised.
+    let x = Var::from_tensor(&randn((3, 130, 5), &mut g, &dev).unwrap()).unwrap();
+    let bias = Var::from_tensor(&randn(5, &mut g, &dev).unwrap()).unwrap();
+    let ours = bias_add(x.as_tensor(), bias.as_tensor()).unwrap();
+    let reference = x.as_tensor().broadcast_add(bias.as_tensor()).unwrap();
+    assert_eq!(max_abs_diff(&ours, &reference), 0.0);
+    let probe = randn((3, 130, 5), &mut g, &dev).unwrap();
+    let g_ours = (ours * &probe)
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .backward()
+        .unwrap();
+    let g_ref = (reference * &probe)
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .backward()
+        .unwrap();
+    for var in [&x, &bias] {
+        let (a, r) = (g_ours.get(var).unwrap(), g_ref.get(var).unwrap());
+        assert_eq!(a.dims(), r.dims());
+        assert!(
+            max_abs_diff(a, r) < 1e-4,
+            "gradient mismatch {}",
+            max_abs_diff(a, r)
+        );
+    }
+    let wrong = Tensor::zeros(4, DType::F32, &dev).unwrap();
+    assert!(bias_add(x.as_tensor(), &wrong).is_err());
 }
 
 #[test]
