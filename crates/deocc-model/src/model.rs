@@ -16,7 +16,7 @@ use candle_nn::{Init, VarBuilder};
 
 use crate::config::{AttentionKind, GlDotConfig};
 use crate::ops::{
-    bias_add, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear_attention,
+    bias_add, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear_attention_qkv,
     softmax_attention,
 };
 
@@ -140,15 +140,17 @@ impl SelfAttention {
     }
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let qkv = self.qkv.forward(x)?;
-        let d = x.dim(2)?;
-        let q = split_heads(&qkv.narrow(2, 0, d)?, self.heads)?;
-        let k = split_heads(&qkv.narrow(2, d, d)?, self.heads)?;
-        let v = split_heads(&qkv.narrow(2, 2 * d, d)?, self.heads)?;
         let out = match self.kind {
-            AttentionKind::Linear => linear_attention(&q, &k, &v, ATTN_EPS)?,
-            AttentionKind::Softmax => softmax_attention(&q, &k, &v)?,
+            AttentionKind::Linear => linear_attention_qkv(&qkv, self.heads, ATTN_EPS)?,
+            AttentionKind::Softmax => {
+                let d = x.dim(2)?;
+                let q = split_heads(&qkv.narrow(2, 0, d)?, self.heads)?;
+                let k = split_heads(&qkv.narrow(2, d, d)?, self.heads)?;
+                let v = split_heads(&qkv.narrow(2, 2 * d, d)?, self.heads)?;
+                merge_heads(&softmax_attention(&q, &k, &v)?)?
+            }
         };
-        self.proj.forward(&merge_heads(&out)?)
+        self.proj.forward(&out)
     }
 }
 

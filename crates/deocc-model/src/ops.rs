@@ -490,3 +490,267 @@ impl candle_core::CustomOp1 for RowSum {
         Ok((CpuStorage::F32(out), Shape::from_dims(&[c])))
     }
 }
+
+/// SANA's ReLU linear attention straight from the fused projection: `qkv` (B, N, 3D) holding q, k
+/// and v side by side, `heads` heads of D / heads channels, out (B, N, D) with the heads merged.
+/// The same function as [`linear_attention`] after splitting heads, without the head
+/// split/merge copies, the ones column, the concatenation and the division as separate ops
+/// (about a dozen candle ops forward and twice that backward per block). CPU f32 custom op with a
+/// hand-written backward; other devices use the composed version.
+pub fn linear_attention_qkv(qkv: &Tensor, heads: usize, eps: f64) -> Result<Tensor> {
+    let (b, n, three_d) = qkv.dims3()?;
+    if heads == 0 || three_d % (3 * heads) != 0 {
+        candle_core::bail!("linear_attention_qkv: {three_d} channels are not 3 x {heads} heads");
+    }
+    if qkv.device().is_cpu() && qkv.dtype() == DType::F32 {
+        qkv.contiguous()?.apply_op1(LinearAttentionQkv {
+            heads,
+            eps: eps as f32,
+        })
+    } else {
+        let d = three_d / 3;
+        let split = |i: usize| -> Result<Tensor> {
+            qkv.narrow(2, i * d, d)?
+                .reshape((b, n, heads, d / heads))?
+                .transpose(1, 2)?
+                .contiguous()
+        };
+        let out = linear_attention(&split(0)?, &split(1)?, &split(2)?, eps)?;
+        out.transpose(1, 2)?.reshape((b, n, d))
+    }
+}
+
+struct LinearAttentionQkv {
+    heads: usize,
+    eps: f32,
+}
+
+/// `dst (m x n) = lhs (m x k) * rhs (k x n)` through gemm's runtime-dispatched SIMD kernels, on
+/// strided views given as (row stride, column stride); `dst` is contiguous, row-major. Single
+/// threaded: the callers run one (sample, head) per rayon task.
+#[allow(clippy::too_many_arguments)]
+fn small_matmul(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: &mut [f32],
+    lhs: &[f32],
+    (lhs_rs, lhs_cs): (usize, usize),
+    rhs: &[f32],
+    (rhs_rs, rhs_cs): (usize, usize),
+) {
+    assert_eq!(dst.len(), m * n, "small_matmul: destination size");
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        dst.fill(0.0);
+        return;
+    }
+    // The furthest element each operand is read at, so that the raw-pointer call stays in bounds.
+    assert!(
+        (m - 1) * lhs_rs + (k - 1) * lhs_cs < lhs.len(),
+        "small_matmul: lhs bounds"
+    );
+    assert!(
+        (k - 1) * rhs_rs + (n - 1) * rhs_cs < rhs.len(),
+        "small_matmul: rhs bounds"
+    );
+    // SAFETY: the asserts above bound every index gemm reads; dst is m x n, row-major.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            false,
+            lhs.as_ptr(),
+            lhs_cs as isize,
+            lhs_rs as isize,
+            rhs.as_ptr(),
+            rhs_cs as isize,
+            rhs_rs as isize,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        );
+    }
+}
+
+/// One (sample, head) of linear attention: relu(q), relu(k) and [v, 1] gathered contiguous, and
+/// `kv` (hd x (hd + 1)) = relu(k)^T [v, 1], whose last column is the key sum (the normaliser).
+struct HeadTerms {
+    rq: Vec<f32>,
+    rk: Vec<f32>,
+    v1: Vec<f32>,
+    kv: Vec<f32>,
+    /// relu(q) kv: (N x (hd + 1)), numerators and normaliser.
+    o: Vec<f32>,
+}
+
+fn head_terms(qkv: &[f32], n: usize, dm: usize, hd: usize, off: usize) -> HeadTerms {
+    let w = hd + 1;
+    let (mut rq, mut rk, mut v1) = (vec![0f32; n * hd], vec![0f32; n * hd], vec![1f32; n * w]);
+    for i in 0..n {
+        let row = &qkv[i * 3 * dm..][..3 * dm];
+        for a in 0..hd {
+            rq[i * hd + a] = row[off + a].max(0.0);
+            rk[i * hd + a] = row[dm + off + a].max(0.0);
+        }
+        v1[i * w..i * w + hd].copy_from_slice(&row[2 * dm + off..][..hd]);
+    }
+    let mut kv = vec![0f32; hd * w];
+    small_matmul(hd, w, n, &mut kv, &rk, (1, hd), &v1, (w, 1));
+    let mut o = vec![0f32; n * w];
+    small_matmul(n, w, hd, &mut o, &rq, (hd, 1), &kv, (w, 1));
+    HeadTerms { rq, rk, v1, kv, o }
+}
+
+impl LinearAttentionQkv {
+    fn dims(&self, l: &Layout) -> Result<(usize, usize, usize, usize)> {
+        let [b, n, three_d] = *l.dims() else {
+            candle_core::bail!("linear attention input must be (B, N, 3D)")
+        };
+        let dm = three_d / 3;
+        Ok((b, n, dm, dm / self.heads))
+    }
+}
+
+impl candle_core::CustomOp1 for LinearAttentionQkv {
+    fn name(&self) -> &'static str {
+        "linear-attention-qkv"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let (b, n, dm, hd) = self.dims(l)?;
+        let x = contiguous_f32(s, l, "linear attention input")?;
+        let w = hd + 1;
+        // One task per (sample, head), then the heads are merged into (B, N, D).
+        let heads: Vec<Vec<f32>> = (0..b * self.heads)
+            .into_par_iter()
+            .map(|task| {
+                let (bi, h) = (task / self.heads, task % self.heads);
+                let t = head_terms(&x[bi * n * 3 * dm..][..n * 3 * dm], n, dm, hd, h * hd);
+                let mut out = vec![0f32; n * hd];
+                for i in 0..n {
+                    let den = t.o[i * w + hd] + self.eps;
+                    for c in 0..hd {
+                        out[i * hd + c] = t.o[i * w + c] / den;
+                    }
+                }
+                out
+            })
+            .collect();
+        let mut out = vec![0f32; b * n * dm];
+        for (task, part) in heads.iter().enumerate() {
+            let (bi, h) = (task / self.heads, task % self.heads);
+            for i in 0..n {
+                out[(bi * n + i) * dm + h * hd..][..hd].copy_from_slice(&part[i * hd..][..hd]);
+            }
+        }
+        Ok((CpuStorage::F32(out), Shape::from_dims(&[b, n, dm])))
+    }
+
+    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
+        let g = arg.apply_op2_no_bwd(
+            &grad.contiguous()?,
+            &LinearAttentionQkvBackward {
+                heads: self.heads,
+                eps: self.eps,
+            },
+        )?;
+        Ok(Some(g))
+    }
+}
+
+/// With r = relu(q_i), den_i = r . ksum + eps, out_i = r KV / den_i and dO the output gradient,
+/// `G` (N x (hd + 1)) holds dnum = dO / den and, in its last column, dden = -(dO . out) / den:
+/// d relu(q) = G KV^T, dKV = relu(q)^T G, d relu(k) = [v, 1] dKV^T, dv = relu(k) dKV[:, :hd];
+/// the ReLU masks the q and k gradients.
+struct LinearAttentionQkvBackward {
+    heads: usize,
+    eps: f32,
+}
+
+impl CustomOp2 for LinearAttentionQkvBackward {
+    fn name(&self) -> &'static str {
+        "linear-attention-qkv-backward"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let fwd = LinearAttentionQkv {
+            heads: self.heads,
+            eps: self.eps,
+        };
+        let (b, n, dm, hd) = fwd.dims(l1)?;
+        if l2.dims() != [b, n, dm] {
+            candle_core::bail!("linear attention gradient must be ({b}, {n}, {dm})");
+        }
+        let x = contiguous_f32(s1, l1, "linear attention input")?;
+        let dout = contiguous_f32(s2, l2, "linear attention output gradient")?;
+        let w = hd + 1;
+        // Per task: (dq, dk, dv), each N x hd.
+        let parts: Vec<[Vec<f32>; 3]> = (0..b * self.heads)
+            .into_par_iter()
+            .map(|task| {
+                let (bi, h) = (task / self.heads, task % self.heads);
+                let qkv = &x[bi * n * 3 * dm..][..n * 3 * dm];
+                let t = head_terms(qkv, n, dm, hd, h * hd);
+                let mut g = vec![0f32; n * w];
+                for i in 0..n {
+                    let den = t.o[i * w + hd] + self.eps;
+                    let go = &dout[(bi * n + i) * dm + h * hd..][..hd];
+                    let mut dot = 0f32;
+                    for c in 0..hd {
+                        g[i * w + c] = go[c] / den;
+                        dot += go[c] * (t.o[i * w + c] / den);
+                    }
+                    g[i * w + hd] = -dot / den;
+                }
+                let mut dq = vec![0f32; n * hd];
+                small_matmul(n, hd, w, &mut dq, &g, (w, 1), &t.kv, (1, w));
+                let mut dkv = vec![0f32; hd * w];
+                small_matmul(hd, w, n, &mut dkv, &t.rq, (1, hd), &g, (w, 1));
+                let mut dk = vec![0f32; n * hd];
+                small_matmul(n, hd, w, &mut dk, &t.v1, (w, 1), &dkv, (1, w));
+                let mut dv = vec![0f32; n * hd];
+                small_matmul(n, hd, hd, &mut dv, &t.rk, (hd, 1), &dkv, (w, 1));
+                // ReLU: no gradient where the input was not positive.
+                for (d, r) in dq.iter_mut().zip(&t.rq) {
+                    if *r <= 0.0 {
+                        *d = 0.0;
+                    }
+                }
+                for (d, r) in dk.iter_mut().zip(&t.rk) {
+                    if *r <= 0.0 {
+                        *d = 0.0;
+                    }
+                }
+                [dq, dk, dv]
+            })
+            .collect();
+        let mut dx = vec![0f32; x.len()];
+        for (task, [dq, dk, dv]) in parts.iter().enumerate() {
+            let (bi, h) = (task / self.heads, task % self.heads);
+            for i in 0..n {
+                let row = &mut dx[(bi * n + i) * 3 * dm..][..3 * dm];
+                let off = h * hd;
+                row[off..][..hd].copy_from_slice(&dq[i * hd..][..hd]);
+                row[dm + off..][..hd].copy_from_slice(&dk[i * hd..][..hd]);
+                row[2 * dm + off..][..hd].copy_from_slice(&dv[i * hd..][..hd]);
+            }
+        }
+        Ok((CpuStorage::F32(dx), l1.shape().clone()))
+    }
+}

@@ -7,7 +7,8 @@ use deocc_model::infer::Completer;
 use deocc_model::init::{randn, SeededInit};
 use deocc_model::model::{patchify, unpatchify, GlDot};
 use deocc_model::ops::{
-    bias_add, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear_attention, modulate,
+    bias_add, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear_attention,
+    linear_attention_qkv, modulate,
 };
 use deocc_model::train::{TrainConfig, Trainer};
 use rand::SeedableRng;
@@ -192,6 +193,67 @@ fn fused_layer_norm_modulate_matches_the_composed_ops_and_their_gradients() {
     // A shift of the wrong shape is an error, not a silent broadcast.
     let wrong = Tensor::zeros((b, 2, c), DType::F32, &dev).unwrap();
     assert!(layer_norm_modulate(x.as_tensor(), &wrong, scale.as_tensor(), 1e-6).is_err());
+}
+
+#[test]
+fn fused_linear_attention_matches_the_composed_ops_and_their_gradients() {
+    let dev = Device::Cpu;
+    let (b, n, heads, hd) = (2, 9, 3, 4);
+    let dm = heads * hd;
+    let mut g = rng(9);
+    let qkv = Var::from_tensor(&randn((b, n, 3 * dm), &mut g, &dev).unwrap()).unwrap();
+    let ours = linear_attention_qkv(qkv.as_tensor(), heads, 1e-6).unwrap();
+    let split = |i: usize| {
+        qkv.as_tensor()
+            .narrow(2, i * dm, dm)
+            .unwrap()
+            .reshape((b, n, heads, hd))
+            .unwrap()
+            .transpose(1, 2)
+            .unwrap()
+            .contiguous()
+            .unwrap()
+    };
+    let reference = linear_attention(&split(0), &split(1), &split(2), 1e-6)
+        .unwrap()
+        .transpose(1, 2)
+        .unwrap()
+        .reshape((b, n, dm))
+        .unwrap();
+    assert_eq!(ours.dims(), &[b, n, dm]);
+    assert!(
+        max_abs_diff(&ours, &reference) < 1e-5,
+        "{}",
+        max_abs_diff(&ours, &reference)
+    );
+    let probe = randn((b, n, dm), &mut g, &dev).unwrap();
+    let g_ours = (ours * &probe)
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .backward()
+        .unwrap();
+    let g_ref = (reference * &probe)
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .backward()
+        .unwrap();
+    let (a, r) = (g_ours.get(&qkv).unwrap(), g_ref.get(&qkv).unwrap());
+    let scale = r
+        .abs()
+        .unwrap()
+        .max_all()
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+    assert!(scale > 0.0);
+    assert!(
+        max_abs_diff(a, r) < 1e-4 * (1.0 + scale),
+        "gradient mismatch {} (largest {scale})",
+        max_abs_diff(a, r)
+    );
+    assert!(linear_attention_qkv(qkv.as_tensor(), 5, 1e-6).is_err());
 }
 
 #[test]
