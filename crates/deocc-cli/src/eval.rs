@@ -393,7 +393,8 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     if let Some(th) = a.mask_threshold {
         completer.mask_threshold = th;
     }
-    let data = test_pairs(a.data.as_ref(), &a.split, a.pairs)?;
+    let data = test_pairs(a.data.as_ref(), &a.split, a.pairs)?
+        .with_mask_prior(completer.model.config.mask_prior);
     if data.resolution() != completer.resolution() {
         bail!(
             "test pairs are {0}x{0} but the model expects {1}x{1}",

@@ -96,6 +96,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }
         trainer.init_from(&init.join("ema.safetensors"))?;
     }
+    // Condition channel 6 carries the prior of the model being trained (a resumed run's own).
+    let data = data.with_mask_prior(trainer.config.model.mask_prior);
     let start = trainer.state.step;
     let total = trainer.config.steps;
     eprintln!(

@@ -92,6 +92,8 @@ pub struct AmodalReport {
     /// The convex hull kept only where the observed scene is in front of the object (where it is
     /// behind, the object would be seen): a free-space-aware geometric baseline.
     pub miou_baseline_convex_hull_in_front: f64,
+    /// The ellipse prior ([`deocc_model::data::ellipse_prior`]), also without a model.
+    pub miou_baseline_ellipse_in_front: f64,
     /// The model's mask (main steps) united with that baseline.
     pub miou_model_or_hull_in_front: f64,
     /// Whether the completer applied its free-space constraint, and the main-steps mIoU with it
@@ -174,6 +176,7 @@ pub fn evaluate_amodal(
     let hulls: Vec<Vec<bool>> = (0..n).map(|k| convex_hull_mask(&visible[k], r)).collect();
     let iou_hull: Vec<f64> = (0..n).map(|k| iou(&hulls[k], &truth[k])).collect();
     let hull_in_front: Vec<Vec<bool>> = idx.iter().map(|&i| data.hull_prior(i)).collect();
+    let ellipse_in_front: Vec<Vec<bool>> = idx.iter().map(|&i| data.ellipse_prior(i)).collect();
 
     let mut miou_by_steps = BTreeMap::new();
     let mut main: Option<(Vec<f64>, Vec<Completion>)> = None;
@@ -343,6 +346,7 @@ pub fn evaluate_amodal(
         free_space_constraint: c.free_space,
         miou_main_steps_without_free_space,
         miou_baseline_convex_hull_in_front: mean((0..n).map(|k| iou(&hull_in_front[k], &truth[k]))),
+        miou_baseline_ellipse_in_front: mean((0..n).map(|k| iou(&ellipse_in_front[k], &truth[k]))),
         miou_model_or_hull_in_front: mean((0..n).map(|k| {
             let united: Vec<bool> = main_comp[k]
                 .amodal

@@ -24,6 +24,10 @@ pub enum MaskPrior {
     /// (test mIoU 0.789 against 0.684 for the visible mask). The model then learns corrections
     /// to a good answer instead of re-deriving it.
     HullInFront,
+    /// The hull prior extended by the ellipse fitted to the object's own contour where the scene
+    /// is in front ([`crate::data::ellipse_prior`]), carried in condition channel 6 instead of
+    /// the hull: validation mIoU 0.816 against 0.780 for the hull, without a model.
+    EllipseInFront,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -73,7 +77,7 @@ impl GlDotConfig {
             cond_patch: 8,
             cond_depth: 1,
             residual: true,
-            mask_prior: MaskPrior::HullInFront,
+            mask_prior: MaskPrior::EllipseInFront,
         }
     }
 
@@ -92,7 +96,7 @@ impl GlDotConfig {
             cond_patch: 8,
             cond_depth: 2,
             residual: true,
-            mask_prior: MaskPrior::HullInFront,
+            mask_prior: MaskPrior::EllipseInFront,
         }
     }
 
@@ -112,7 +116,7 @@ impl GlDotConfig {
             cond_patch: 8,
             cond_depth: 4,
             residual: true,
-            mask_prior: MaskPrior::HullInFront,
+            mask_prior: MaskPrior::EllipseInFront,
         }
     }
 
@@ -158,10 +162,10 @@ impl GlDotConfig {
         if self.depth == 0 || self.target_channels == 0 {
             return Err("depth and target_channels must be positive".into());
         }
-        if self.mask_prior == MaskPrior::HullInFront && self.cond_channels < 7 {
+        if self.mask_prior != MaskPrior::Visible && self.cond_channels < 7 {
             return Err(format!(
-                "mask_prior hull_in_front reads condition channel 6, but cond_channels is {}",
-                self.cond_channels
+                "mask_prior {:?} reads condition channel 6, but cond_channels is {}",
+                self.mask_prior, self.cond_channels
             ));
         }
         Ok(())

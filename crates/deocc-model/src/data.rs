@@ -6,17 +6,17 @@
 //! depth, and the whole crop's observed relative depth (clamped to [-1, 1]), scaled the same way.
 //! The last one tells the model where something is in front of the object (it may continue
 //! there) and where the scene is behind it (it cannot: it would be seen). The seventh is a
-//! geometric prior, [`hull_prior`]: the visible mask's convex hull where the scene is in front.
-//! Alone it beats the model's own masks (0.789 against 0.711 mIoU on held-out pairs), so a model
-//! given it can learn what to add and remove. The shipped model predates it and reads the first
-//! six channels; training the 7-channel preset is the next experiment.
+//! geometric prior of the model's [`MaskPrior`]: [`hull_prior`] (the visible mask's convex hull
+//! where the scene is in front) or [`ellipse_prior`] (that, plus the ellipse fitted to the
+//! object's own contour where the scene is in front). Models read the first channels they were
+//! trained with, so older weights keep working.
 
 use std::collections::HashMap;
 use std::path::Path;
 
 use crate::config::MaskPrior;
 use candle_core::{Device, Result, Tensor};
-use deocc_geometry::mask2d::convex_hull_mask;
+use deocc_geometry::mask2d::{conic_value, convex_hull_mask, fit_ellipse};
 use deocc_synth::pairs::{load_pairs, PairSet};
 use rand::Rng;
 
@@ -36,10 +36,85 @@ pub fn hull_prior(visible: &[bool], scene_rel_depth: &[f32], r: usize) -> Vec<bo
         .collect()
 }
 
+/// The ellipse prior: [`hull_prior`], plus the pixels where the scene is in front that lie inside
+/// the ellipse fitted to the object's own contour. That contour is the visible pixels next to
+/// a pixel (inside the crop) that is neither the object nor in front of it: there the object's
+/// silhouette ends, while next to an occluder it only stops being seen. Most objects project to
+/// convex, roundish silhouettes, so the ellipse through the seen part of the silhouette runs on
+/// behind the occluder where the convex hull stops at the visible pixels. An ellipse larger than
+/// three times the visible area (an almost straight contour, a poor fit) adds nothing.
+/// Measured without a model on 300 validation pairs: mIoU 0.816 against 0.780 for [`hull_prior`].
+pub fn ellipse_prior(visible: &[bool], scene_rel_depth: &[f32], r: usize) -> Vec<bool> {
+    let mut prior = hull_prior(visible, scene_rel_depth, r);
+    let at = |u: usize, v: usize| v * r + u;
+    let mut contour: Vec<(f64, f64)> = Vec::new();
+    for v in 0..r {
+        for u in 0..r {
+            if !visible[at(u, v)] {
+                continue;
+            }
+            let neighbours = [
+                (u > 0).then(|| at(u - 1, v)),
+                (u + 1 < r).then(|| at(u + 1, v)),
+                (v > 0).then(|| at(u, v - 1)),
+                (v + 1 < r).then(|| at(u, v + 1)),
+            ];
+            let silhouette = neighbours
+                .iter()
+                .flatten()
+                .any(|&q| !visible[q] && scene_rel_depth[q] >= 0.0);
+            if silhouette {
+                contour.push(((u as f64 + 0.5) / r as f64, (v as f64 + 0.5) / r as f64));
+            }
+        }
+    }
+    const MIN_CONTOUR: usize = 8;
+    const MAX_AREA_OVER_VISIBLE: usize = 3;
+    if contour.len() < MIN_CONTOUR {
+        return prior;
+    }
+    let Some(q) = fit_ellipse(&contour) else {
+        return prior;
+    };
+    let value = |p: usize| {
+        let (u, v) = ((p % r) as f64 + 0.5, (p / r) as f64 + 0.5);
+        conic_value(&q, u / r as f64, v / r as f64)
+    };
+    // Inside is the side the visible pixels are on (the median's sign, robust to a stray pixel).
+    let mut on_visible: Vec<f64> = (0..r * r).filter(|&p| visible[p]).map(value).collect();
+    on_visible.sort_unstable_by(f64::total_cmp);
+    let sign = on_visible[on_visible.len() / 2].signum();
+    let inside: Vec<bool> = (0..r * r).map(|p| value(p) * sign > 0.0).collect();
+    let area = inside.iter().filter(|&&i| i).count();
+    if area >= MAX_AREA_OVER_VISIBLE * on_visible.len().max(1) {
+        return prior;
+    }
+    for p in 0..r * r {
+        prior[p] |= inside[p] && scene_rel_depth[p] < 0.0;
+    }
+    prior
+}
+
+/// The mask of condition channel 6 for a model with this residual prior. Models trained with the
+/// visible or the hull prior were given the hull there.
+pub fn condition_prior(
+    kind: MaskPrior,
+    visible: &[bool],
+    scene_rel_depth: &[f32],
+    r: usize,
+) -> Vec<bool> {
+    match kind {
+        MaskPrior::Visible | MaskPrior::HullInFront => hull_prior(visible, scene_rel_depth, r),
+        MaskPrior::EllipseInFront => ellipse_prior(visible, scene_rel_depth, r),
+    }
+}
+
 /// Pairs plus an index of which pairs show the same object.
 pub struct PairData {
     pub set: PairSet,
     groups: HashMap<u32, Vec<usize>>,
+    /// Which prior condition channel 6 carries (set it to the model's, see [`condition_prior`]).
+    mask_prior: MaskPrior,
 }
 
 impl PairData {
@@ -48,7 +123,17 @@ impl PairData {
         for (i, &g) in set.group.iter().enumerate() {
             groups.entry(g).or_default().push(i);
         }
-        Self { set, groups }
+        Self {
+            set,
+            groups,
+            mask_prior: MaskPrior::HullInFront,
+        }
+    }
+
+    /// The same pairs with condition channel 6 made for a model with this residual prior.
+    pub fn with_mask_prior(mut self, kind: MaskPrior) -> Self {
+        self.mask_prior = kind;
+        self
     }
 
     /// Loads and concatenates shards (group ids are made unique per shard file).
@@ -96,7 +181,7 @@ impl PairData {
     fn write_pair(&self, i: usize, flip: bool, target: &mut [f32], cond: &mut [f32]) {
         let r = self.resolution();
         let s = &self.set;
-        let prior = self.hull_prior(i);
+        let prior = self.condition_prior(i);
         for v in 0..r {
             for u in 0..r {
                 let src_u = if flip { r - 1 - u } else { u };
@@ -146,9 +231,24 @@ impl PairData {
 
     /// [`hull_prior`] of pair `i` (unmirrored).
     pub fn hull_prior(&self, i: usize) -> Vec<bool> {
+        self.prior_of(i, hull_prior)
+    }
+
+    /// [`ellipse_prior`] of pair `i` (unmirrored).
+    pub fn ellipse_prior(&self, i: usize) -> Vec<bool> {
+        self.prior_of(i, ellipse_prior)
+    }
+
+    /// Condition channel 6 of pair `i` (unmirrored): the prior of [`PairData::with_mask_prior`].
+    pub fn condition_prior(&self, i: usize) -> Vec<bool> {
+        let kind = self.mask_prior;
+        self.prior_of(i, |v, s, r| condition_prior(kind, v, s, r))
+    }
+
+    fn prior_of(&self, i: usize, prior: impl Fn(&[bool], &[f32], usize) -> Vec<bool>) -> Vec<bool> {
         let n = self.set.pixels();
         let visible: Vec<bool> = self.visible_mask(i).iter().map(|&m| m > 0).collect();
-        hull_prior(
+        prior(
             &visible,
             &self.set.scene_depth[i * n..(i + 1) * n],
             self.resolution(),
@@ -206,7 +306,7 @@ pub fn residual_prior(cond: &Tensor, mask_prior: MaskPrior) -> Result<Tensor> {
     let prior_depth = depth.mul(&vis)?;
     let mask = match mask_prior {
         MaskPrior::Visible => vis_mask,
-        MaskPrior::HullInFront => cond.narrow(3, 6, 1)?,
+        MaskPrior::HullInFront | MaskPrior::EllipseInFront => cond.narrow(3, 6, 1)?,
     };
     Tensor::cat(&[&prior_rgb, &mask, &prior_depth, &prior_depth], 3)
 }

@@ -638,3 +638,68 @@ fn free_space_constraint_keeps_hidden_pixels_only_where_the_scene_is_in_front() 
         "{ruled_out} ruled out, {kept} kept"
     );
 }
+
+/// A disk of radius 10 in a 32x32 crop whose right part is hidden by an occluder in front; the
+/// rest of the crop is background behind the object.
+fn occluded_disk() -> (Vec<bool>, Vec<bool>, Vec<f32>) {
+    let r = 32;
+    let disk: Vec<bool> = (0..r * r)
+        .map(|p| {
+            let (x, y) = ((p % r) as f32 + 0.5 - 16.0, (p / r) as f32 + 0.5 - 16.0);
+            x * x + y * y <= 100.0
+        })
+        .collect();
+    let occluder = |p: usize| p % r >= 18;
+    let visible: Vec<bool> = (0..r * r).map(|p| disk[p] && !occluder(p)).collect();
+    let scene: Vec<f32> = (0..r * r)
+        .map(|p| match (occluder(p), disk[p]) {
+            (true, _) => -0.5,
+            (false, true) => 0.0,
+            (false, false) => 0.6,
+        })
+        .collect();
+    (disk, visible, scene)
+}
+
+#[test]
+fn ellipse_prior_continues_a_disk_behind_its_occluder() {
+    use deocc_geometry::mask2d::iou;
+    use deocc_model::data::{ellipse_prior, hull_prior};
+    let (disk, visible, scene) = occluded_disk();
+    let hull = hull_prior(&visible, &scene, 32);
+    let ellipse = ellipse_prior(&visible, &scene, 32);
+    let (iou_hull, iou_ellipse) = (iou(&hull, &disk), iou(&ellipse, &disk));
+    // The contour is fitted through pixel centres, half a pixel inside the silhouette, so the
+    // ellipse is a little smaller than the disk (0.94 here).
+    assert!(iou_ellipse > 0.9, "ellipse prior IoU {iou_ellipse}");
+    assert!(
+        iou_ellipse > iou_hull + 0.2,
+        "{iou_ellipse} vs hull {iou_hull}"
+    );
+    // It extends the hull and never where the scene is seen behind the object.
+    for p in 0..32 * 32 {
+        assert!(!hull[p] || ellipse[p]);
+        assert!(!ellipse[p] || visible[p] || scene[p] < 0.0, "pixel {p}");
+    }
+    // A contour too short to fit leaves the hull as it is.
+    let speck: Vec<bool> = (0..32 * 32).map(|p| p == 5 * 32 + 5).collect();
+    assert_eq!(
+        ellipse_prior(&speck, &scene, 32),
+        hull_prior(&speck, &scene, 32)
+    );
+}
+
+#[test]
+fn pair_data_carries_the_prior_of_the_model_in_channel_6() {
+    use deocc_model::data::COND_CHANNELS;
+    let channel6 = |data: &PairData| -> Vec<bool> {
+        let (_, cond) = data.batch(&[0], &[false], &Device::Cpu).unwrap();
+        let c: Vec<f32> = cond.flatten_all().unwrap().to_vec1().unwrap();
+        c.chunks_exact(COND_CHANNELS).map(|p| p[6] > 0.0).collect()
+    };
+    let data = tiny_pairs();
+    assert_eq!(channel6(&data), data.hull_prior(0));
+    let data = data.with_mask_prior(MaskPrior::EllipseInFront);
+    assert_eq!(channel6(&data), data.ellipse_prior(0));
+    assert_eq!(data.condition_prior(0), data.ellipse_prior(0));
+}

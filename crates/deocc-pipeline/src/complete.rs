@@ -5,8 +5,9 @@
 use candle_core::{Device, Tensor};
 use deocc_geometry::robust::{huber_affine_fit, AffineFit, HuberOptions};
 use deocc_geometry::PointCloud;
-use deocc_model::data::{hull_prior, COND_CHANNELS, DEPTH_SCALE};
+use deocc_model::data::{condition_prior, COND_CHANNELS, DEPTH_SCALE};
 use deocc_model::infer::Completion;
+use deocc_model::MaskPrior;
 use nalgebra::Point3;
 use serde::Serialize;
 
@@ -36,8 +37,15 @@ pub struct Crop {
     pub metric_scale_m: f32,
 }
 
-/// Builds the crop of `id` in `frame`; `None` if the instance is not visible there.
-pub fn make_crop(frame: &Frame, view: usize, id: u16, resolution: usize) -> Option<Crop> {
+/// Builds the crop of `id` in `frame`, its condition channel 6 made for a model with `mask_prior`;
+/// `None` if the instance is not visible there.
+pub fn make_crop(
+    frame: &Frame,
+    view: usize,
+    id: u16,
+    resolution: usize,
+    mask_prior: MaskPrior,
+) -> Option<Crop> {
     let inst = frame.instances.as_ref()?;
     let (w, h) = (inst.width as usize, inst.height as usize);
     let mut b = (usize::MAX, usize::MAX, 0usize, 0usize);
@@ -91,7 +99,7 @@ pub fn make_crop(frame: &Frame, view: usize, id: u16, resolution: usize) -> Opti
             }
         })
         .collect();
-    let prior = hull_prior(&visible, &scene_rel, r);
+    let prior = condition_prior(mask_prior, &visible, &scene_rel, r);
     let mut cond = vec![0f32; n * COND_CHANNELS];
     for k in 0..n {
         let c = &mut cond[k * COND_CHANNELS..(k + 1) * COND_CHANNELS];

@@ -278,12 +278,13 @@ pub fn run(
 
     let t = Instant::now();
     let r = completer.resolution();
+    let mask_prior = completer.model.config.mask_prior;
     let (crops, too_large): (Vec<Crop>, Vec<Crop>) = selected
         .iter()
         .flat_map(|(&id, views)| {
             views
                 .iter()
-                .filter_map(move |&v| make_crop(&scene.frames[v], v, id, r))
+                .filter_map(move |&v| make_crop(&scene.frames[v], v, id, r, mask_prior))
         })
         .partition(|c| c.metric_scale_m <= opts.max_crop_width_m);
     let crops_too_large = too_large.len();
