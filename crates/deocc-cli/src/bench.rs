@@ -129,6 +129,16 @@ fn model_bench(a: ModelArgs) -> Result<()> {
             m.forward(&x, &Tensor::full(0.5f32, b, &dev)?, &cond, &toks)?;
             Ok(())
         };
+    // Inference as users run it (`Completer`): the same weights as plain tensors, so candle
+    // records no autograd graph (PyTorch's side runs under `torch.no_grad()`).
+    let frozen = {
+        let tensors: std::collections::HashMap<String, Tensor> = vars
+            .iter()
+            .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
+            .collect();
+        GlDot::new(&cfg, VarBuilder::from_tensors(tensors, DType::F32, &dev))?
+    };
+    let model = frozen;
     let (fwd_s, _) = median_time(10, || forward(&model, &cfg, 1, &mut rng))?;
     let mut complete = |b: usize| -> Result<f64> {
         Ok(median_time(5, || {
