@@ -18,6 +18,7 @@ pub mod infer;
 pub mod init;
 pub mod model;
 pub mod ops;
+pub mod pool;
 pub mod train;
 
 pub use config::{GlDotConfig, MaskPrior};

@@ -11,7 +11,6 @@
 //!   hand-written backward.
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor, D};
-use rayon::prelude::*;
 
 /// `y = x * (1 + scale) + shift`, with `shift` and `scale` of shape (B, 1, D) broadcast over tokens.
 pub fn modulate(x: &Tensor, shift: &Tensor, scale: &Tensor) -> Result<Tensor> {
@@ -63,32 +62,30 @@ fn contiguous_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [
 /// y[b,i,j,c] = sum_{a,e in 0..3} x[b, i+a-1, j+e-1, c] * w[a, e, c], zero padding.
 fn dwconv_forward(x: &[f32], w: &[f32], bsz: usize, h: usize, wd: usize, c: usize) -> Vec<f32> {
     let mut y = vec![0f32; bsz * h * wd * c];
-    y.par_chunks_mut(wd * c)
-        .enumerate()
-        .for_each(|(row_idx, out_row)| {
-            let (b, i) = (row_idx / h, row_idx % h);
-            for a in 0..3 {
-                let ii = i as isize + a as isize - 1;
-                if ii < 0 || ii >= h as isize {
-                    continue;
-                }
-                let in_row = &x[(b * h + ii as usize) * wd * c..][..wd * c];
-                for e in 0..3 {
-                    let wk = &w[(a * 3 + e) * c..][..c];
-                    for j in 0..wd {
-                        let jj = j as isize + e as isize - 1;
-                        if jj < 0 || jj >= wd as isize {
-                            continue;
-                        }
-                        let src = &in_row[jj as usize * c..][..c];
-                        let dst = &mut out_row[j * c..][..c];
-                        for ((d, s), k) in dst.iter_mut().zip(src).zip(wk) {
-                            *d += s * k;
-                        }
+    crate::pool::for_each_chunk_mut(&mut y, wd * c, |row_idx, out_row| {
+        let (b, i) = (row_idx / h, row_idx % h);
+        for a in 0..3 {
+            let ii = i as isize + a as isize - 1;
+            if ii < 0 || ii >= h as isize {
+                continue;
+            }
+            let in_row = &x[(b * h + ii as usize) * wd * c..][..wd * c];
+            for e in 0..3 {
+                let wk = &w[(a * 3 + e) * c..][..c];
+                for j in 0..wd {
+                    let jj = j as isize + e as isize - 1;
+                    if jj < 0 || jj >= wd as isize {
+                        continue;
+                    }
+                    let src = &in_row[jj as usize * c..][..c];
+                    let dst = &mut out_row[j * c..][..c];
+                    for ((d, s), k) in dst.iter_mut().zip(src).zip(wk) {
+                        *d += s * k;
                     }
                 }
             }
-        });
+        }
+    });
     y
 }
 
@@ -172,36 +169,33 @@ impl CustomOp2 for DepthwiseConv3x3WeightGrad {
         let x = contiguous_f32(s1, l1, "input")?;
         let g = contiguous_f32(s2, l2, "output gradient")?;
         // One partial (3, 3, C) sum per image row, reduced at the end: parallel and deterministic.
-        let partial: Vec<Vec<f32>> = (0..b * h)
-            .into_par_iter()
-            .map(|row_idx| {
-                let (bi, i) = (row_idx / h, row_idx % h);
-                let mut acc = vec![0f32; 9 * c];
-                let g_row = &g[(bi * h + i) * w * c..][..w * c];
-                for a in 0..3 {
-                    let ii = i as isize + a as isize - 1;
-                    if ii < 0 || ii >= h as isize {
-                        continue;
-                    }
-                    let x_row = &x[(bi * h + ii as usize) * w * c..][..w * c];
-                    for e in 0..3 {
-                        let dst = &mut acc[(a * 3 + e) * c..][..c];
-                        for j in 0..w {
-                            let jj = j as isize + e as isize - 1;
-                            if jj < 0 || jj >= w as isize {
-                                continue;
-                            }
-                            let xs = &x_row[jj as usize * c..][..c];
-                            let gs = &g_row[j * c..][..c];
-                            for ((d, xv), gv) in dst.iter_mut().zip(xs).zip(gs) {
-                                *d += xv * gv;
-                            }
+        let partial: Vec<Vec<f32>> = crate::pool::map(b * h, |row_idx| {
+            let (bi, i) = (row_idx / h, row_idx % h);
+            let mut acc = vec![0f32; 9 * c];
+            let g_row = &g[(bi * h + i) * w * c..][..w * c];
+            for a in 0..3 {
+                let ii = i as isize + a as isize - 1;
+                if ii < 0 || ii >= h as isize {
+                    continue;
+                }
+                let x_row = &x[(bi * h + ii as usize) * w * c..][..w * c];
+                for e in 0..3 {
+                    let dst = &mut acc[(a * 3 + e) * c..][..c];
+                    for j in 0..w {
+                        let jj = j as isize + e as isize - 1;
+                        if jj < 0 || jj >= w as isize {
+                            continue;
+                        }
+                        let xs = &x_row[jj as usize * c..][..c];
+                        let gs = &g_row[j * c..][..c];
+                        for ((d, xv), gv) in dst.iter_mut().zip(xs).zip(gs) {
+                            *d += xv * gv;
                         }
                     }
                 }
-                acc
-            })
-            .collect();
+            }
+            acc
+        });
         let mut out = vec![0f32; 9 * c];
         for p in &partial {
             for (o, v) in out.iter_mut().zip(p) {
@@ -295,18 +289,15 @@ impl CustomOp3 for LayerNormModulate {
         let shift = contiguous_f32(s2, l2, "layer_norm_modulate shift")?;
         let scale = contiguous_f32(s3, l3, "layer_norm_modulate scale")?;
         let mut y = vec![0f32; x.len()];
-        y.par_chunks_mut(c)
-            .zip(x.par_chunks(c))
-            .with_min_len(64)
-            .enumerate()
-            .for_each(|(r, (out, row))| {
-                let bi = r / n;
-                let (sh, sc) = (&shift[bi * c..][..c], &scale[bi * c..][..c]);
-                let (mean, inv) = row_stats(row, self.eps);
-                for (((o, v), s), t) in out.iter_mut().zip(row).zip(sc).zip(sh) {
-                    *o = (v - mean) * inv * (1.0 + s) + t;
-                }
-            });
+        crate::pool::for_each_chunk_mut(&mut y, c, |r, out| {
+            let row = &x[r * c..][..c];
+            let bi = r / n;
+            let (sh, sc) = (&shift[bi * c..][..c], &scale[bi * c..][..c]);
+            let (mean, inv) = row_stats(row, self.eps);
+            for (((o, v), s), t) in out.iter_mut().zip(row).zip(sc).zip(sh) {
+                *o = (v - mean) * inv * (1.0 + s) + t;
+            }
+        });
         Ok((CpuStorage::F32(y), l1.shape().clone()))
     }
 
@@ -363,35 +354,33 @@ impl CustomOp3 for LayerNormModulateBackward {
         let dy = contiguous_f32(s3, l3, "layer_norm_modulate output gradient")?;
         let mut out = vec![0f32; b * (n + 2) * c];
         // One sample per task: its token rows and its own shift/scale sums (deterministic).
-        out.par_chunks_mut((n + 2) * c)
-            .enumerate()
-            .for_each(|(bi, out)| {
-                let sc = &scale[bi * c..][..c];
-                let (dx, sums) = out.split_at_mut(n * c);
-                let (dshift, dscale) = sums.split_at_mut(c);
-                let mut xh = vec![0f32; c];
-                let mut g = vec![0f32; c];
-                for t in 0..n {
-                    let row = &x[(bi * n + t) * c..][..c];
-                    let dyr = &dy[(bi * n + t) * c..][..c];
-                    let (mean, inv) = row_stats(row, self.eps);
-                    let (mut g_mean, mut gx_mean) = (0f32, 0f32);
-                    for j in 0..c {
-                        xh[j] = (row[j] - mean) * inv;
-                        g[j] = dyr[j] * (1.0 + sc[j]);
-                        g_mean += g[j];
-                        gx_mean += g[j] * xh[j];
-                        dshift[j] += dyr[j];
-                        dscale[j] += dyr[j] * xh[j];
-                    }
-                    g_mean /= c as f32;
-                    gx_mean /= c as f32;
-                    let dxr = &mut dx[t * c..][..c];
-                    for j in 0..c {
-                        dxr[j] = inv * (g[j] - g_mean - xh[j] * gx_mean);
-                    }
+        crate::pool::for_each_chunk_mut(&mut out, (n + 2) * c, |bi, out| {
+            let sc = &scale[bi * c..][..c];
+            let (dx, sums) = out.split_at_mut(n * c);
+            let (dshift, dscale) = sums.split_at_mut(c);
+            let mut xh = vec![0f32; c];
+            let mut g = vec![0f32; c];
+            for t in 0..n {
+                let row = &x[(bi * n + t) * c..][..c];
+                let dyr = &dy[(bi * n + t) * c..][..c];
+                let (mean, inv) = row_stats(row, self.eps);
+                let (mut g_mean, mut gx_mean) = (0f32, 0f32);
+                for j in 0..c {
+                    xh[j] = (row[j] - mean) * inv;
+                    g[j] = dyr[j] * (1.0 + sc[j]);
+                    g_mean += g[j];
+                    gx_mean += g[j] * xh[j];
+                    dshift[j] += dyr[j];
+                    dscale[j] += dyr[j] * xh[j];
                 }
-            });
+                g_mean /= c as f32;
+                gx_mean /= c as f32;
+                let dxr = &mut dx[t * c..][..c];
+                for j in 0..c {
+                    dxr[j] = inv * (g[j] - g_mean - xh[j] * gx_mean);
+                }
+            }
+        });
         Ok((CpuStorage::F32(out), Shape::from_dims(&[b, n + 2, c])))
     }
 }
@@ -434,7 +423,7 @@ impl CustomOp2 for BiasAdd {
         let b = contiguous_f32(s2, l2, "bias_add bias")?;
         let mut y = x.to_vec();
         if c > 0 {
-            y.par_chunks_mut(c).with_min_len(64).for_each(|row| {
+            crate::pool::for_each_chunk_mut(&mut y, c, |_, row| {
                 for (v, bv) in row.iter_mut().zip(b) {
                     *v += bv;
                 }
@@ -469,18 +458,16 @@ impl candle_core::CustomOp1 for RowSum {
         let mut out = vec![0f32; c];
         if c > 0 {
             const ROWS: usize = 256;
-            let partial: Vec<Vec<f32>> = g
-                .par_chunks(ROWS * c)
-                .map(|chunk| {
-                    let mut acc = vec![0f32; c];
-                    for row in chunk.chunks_exact(c) {
-                        for (a, v) in acc.iter_mut().zip(row) {
-                            *a += v;
-                        }
+            let partial: Vec<Vec<f32>> = crate::pool::map(g.len().div_ceil(ROWS * c), |k| {
+                let chunk = &g[k * ROWS * c..g.len().min((k + 1) * ROWS * c)];
+                let mut acc = vec![0f32; c];
+                for row in chunk.chunks_exact(c) {
+                    for (a, v) in acc.iter_mut().zip(row) {
+                        *a += v;
                     }
-                    acc
-                })
-                .collect();
+                }
+                acc
+            });
             for p in &partial {
                 for (o, v) in out.iter_mut().zip(p) {
                     *o += v;
@@ -527,7 +514,7 @@ struct LinearAttentionQkv {
 
 /// `dst (m x n) = lhs (m x k) * rhs (k x n)` through gemm's runtime-dispatched SIMD kernels, on
 /// strided views given as (row stride, column stride); `dst` is contiguous, row-major. Single
-/// threaded: the callers run one (sample, head) per rayon task.
+/// threaded: the callers run one (sample, head) per task of the pool.
 #[allow(clippy::too_many_arguments)]
 fn small_matmul(
     m: usize,
@@ -631,21 +618,18 @@ impl candle_core::CustomOp1 for LinearAttentionQkv {
         let x = contiguous_f32(s, l, "linear attention input")?;
         let w = hd + 1;
         // One task per (sample, head), then the heads are merged into (B, N, D).
-        let heads: Vec<Vec<f32>> = (0..b * self.heads)
-            .into_par_iter()
-            .map(|task| {
-                let (bi, h) = (task / self.heads, task % self.heads);
-                let t = head_terms(&x[bi * n * 3 * dm..][..n * 3 * dm], n, dm, hd, h * hd);
-                let mut out = vec![0f32; n * hd];
-                for i in 0..n {
-                    let den = t.o[i * w + hd] + self.eps;
-                    for c in 0..hd {
-                        out[i * hd + c] = t.o[i * w + c] / den;
-                    }
+        let heads: Vec<Vec<f32>> = crate::pool::map(b * self.heads, |task| {
+            let (bi, h) = (task / self.heads, task % self.heads);
+            let t = head_terms(&x[bi * n * 3 * dm..][..n * 3 * dm], n, dm, hd, h * hd);
+            let mut out = vec![0f32; n * hd];
+            for i in 0..n {
+                let den = t.o[i * w + hd] + self.eps;
+                for c in 0..hd {
+                    out[i * hd + c] = t.o[i * w + c] / den;
                 }
-                out
-            })
-            .collect();
+            }
+            out
+        });
         let mut out = vec![0f32; b * n * dm];
         for (task, part) in heads.iter().enumerate() {
             let (bi, h) = (task / self.heads, task % self.heads);
@@ -701,45 +685,42 @@ impl CustomOp2 for LinearAttentionQkvBackward {
         let dout = contiguous_f32(s2, l2, "linear attention output gradient")?;
         let w = hd + 1;
         // Per task: (dq, dk, dv), each N x hd.
-        let parts: Vec<[Vec<f32>; 3]> = (0..b * self.heads)
-            .into_par_iter()
-            .map(|task| {
-                let (bi, h) = (task / self.heads, task % self.heads);
-                let qkv = &x[bi * n * 3 * dm..][..n * 3 * dm];
-                let t = head_terms(qkv, n, dm, hd, h * hd);
-                let mut g = vec![0f32; n * w];
-                for i in 0..n {
-                    let den = t.o[i * w + hd] + self.eps;
-                    let go = &dout[(bi * n + i) * dm + h * hd..][..hd];
-                    let mut dot = 0f32;
-                    for c in 0..hd {
-                        g[i * w + c] = go[c] / den;
-                        dot += go[c] * (t.o[i * w + c] / den);
-                    }
-                    g[i * w + hd] = -dot / den;
+        let parts: Vec<[Vec<f32>; 3]> = crate::pool::map(b * self.heads, |task| {
+            let (bi, h) = (task / self.heads, task % self.heads);
+            let qkv = &x[bi * n * 3 * dm..][..n * 3 * dm];
+            let t = head_terms(qkv, n, dm, hd, h * hd);
+            let mut g = vec![0f32; n * w];
+            for i in 0..n {
+                let den = t.o[i * w + hd] + self.eps;
+                let go = &dout[(bi * n + i) * dm + h * hd..][..hd];
+                let mut dot = 0f32;
+                for c in 0..hd {
+                    g[i * w + c] = go[c] / den;
+                    dot += go[c] * (t.o[i * w + c] / den);
                 }
-                let mut dq = vec![0f32; n * hd];
-                small_matmul(n, hd, w, &mut dq, &g, (w, 1), &t.kv, (1, w));
-                let mut dkv = vec![0f32; hd * w];
-                small_matmul(hd, w, n, &mut dkv, &t.rq, (1, hd), &g, (w, 1));
-                let mut dk = vec![0f32; n * hd];
-                small_matmul(n, hd, w, &mut dk, &t.v1, (w, 1), &dkv, (1, w));
-                let mut dv = vec![0f32; n * hd];
-                small_matmul(n, hd, hd, &mut dv, &t.rk, (hd, 1), &dkv, (w, 1));
-                // ReLU: no gradient where the input was not positive.
-                for (d, r) in dq.iter_mut().zip(&t.rq) {
-                    if *r <= 0.0 {
-                        *d = 0.0;
-                    }
+                g[i * w + hd] = -dot / den;
+            }
+            let mut dq = vec![0f32; n * hd];
+            small_matmul(n, hd, w, &mut dq, &g, (w, 1), &t.kv, (1, w));
+            let mut dkv = vec![0f32; hd * w];
+            small_matmul(hd, w, n, &mut dkv, &t.rq, (1, hd), &g, (w, 1));
+            let mut dk = vec![0f32; n * hd];
+            small_matmul(n, hd, w, &mut dk, &t.v1, (w, 1), &dkv, (1, w));
+            let mut dv = vec![0f32; n * hd];
+            small_matmul(n, hd, hd, &mut dv, &t.rk, (hd, 1), &dkv, (w, 1));
+            // ReLU: no gradient where the input was not positive.
+            for (d, r) in dq.iter_mut().zip(&t.rq) {
+                if *r <= 0.0 {
+                    *d = 0.0;
                 }
-                for (d, r) in dk.iter_mut().zip(&t.rk) {
-                    if *r <= 0.0 {
-                        *d = 0.0;
-                    }
+            }
+            for (d, r) in dk.iter_mut().zip(&t.rk) {
+                if *r <= 0.0 {
+                    *d = 0.0;
                 }
-                [dq, dk, dv]
-            })
-            .collect();
+            }
+            [dq, dk, dv]
+        });
         let mut dx = vec![0f32; x.len()];
         for (task, [dq, dk, dv]) in parts.iter().enumerate() {
             let (bi, h) = (task / self.heads, task % self.heads);
