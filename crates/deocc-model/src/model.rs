@@ -16,8 +16,8 @@ use candle_nn::{Init, VarBuilder};
 
 use crate::config::{AttentionKind, GlDotConfig};
 use crate::ops::{
-    bias_add, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear_attention_qkv,
-    softmax_attention,
+    bias_add, cross_attention, depthwise_conv3x3, layer_norm, layer_norm_modulate,
+    linear_attention_qkv, softmax_attention,
 };
 
 const LN_EPS: f64 = 1e-6;
@@ -172,13 +172,9 @@ impl CrossAttention {
         })
     }
     fn forward(&self, x: &Tensor, cond: &Tensor) -> Result<Tensor> {
-        let d = x.dim(2)?;
-        let q = split_heads(&self.q.forward(x)?, self.heads)?;
+        let q = self.q.forward(x)?;
         let kv = self.kv.forward(cond)?;
-        let k = split_heads(&kv.narrow(2, 0, d)?, self.heads)?;
-        let v = split_heads(&kv.narrow(2, d, d)?, self.heads)?;
-        self.proj
-            .forward(&merge_heads(&softmax_attention(&q, &k, &v)?)?)
+        self.proj.forward(&cross_attention(&q, &kv, self.heads)?)
     }
 }
 

@@ -703,3 +703,64 @@ fn pair_data_carries_the_prior_of_the_model_in_channel_6() {
     assert_eq!(channel6(&data), data.ellipse_prior(0));
     assert_eq!(data.condition_prior(0), data.ellipse_prior(0));
 }
+
+#[test]
+fn fused_cross_attention_matches_the_composed_ops_and_their_gradients() {
+    use deocc_model::ops::{cross_attention, softmax_attention};
+    let dev = Device::Cpu;
+    let (b, n, m, heads, hd) = (2, 7, 5, 3, 4);
+    let d = heads * hd;
+    let mut g = rng(12);
+    let q = Var::from_tensor(&randn((b, n, d), &mut g, &dev).unwrap()).unwrap();
+    let kv = Var::from_tensor(&randn((b, m, 2 * d), &mut g, &dev).unwrap()).unwrap();
+    let ours = cross_attention(q.as_tensor(), kv.as_tensor(), heads).unwrap();
+    let split = |x: &Tensor, len: usize| {
+        x.reshape((b, len, heads, hd))
+            .unwrap()
+            .transpose(1, 2)
+            .unwrap()
+            .contiguous()
+            .unwrap()
+    };
+    let k = split(&kv.as_tensor().narrow(2, 0, d).unwrap(), m);
+    let v = split(&kv.as_tensor().narrow(2, d, d).unwrap(), m);
+    let reference = softmax_attention(&split(q.as_tensor(), n), &k, &v)
+        .unwrap()
+        .transpose(1, 2)
+        .unwrap()
+        .reshape((b, n, d))
+        .unwrap();
+    assert_eq!(ours.dims(), &[b, n, d]);
+    assert!(
+        max_abs_diff(&ours, &reference) < 1e-5,
+        "{}",
+        max_abs_diff(&ours, &reference)
+    );
+    let probe = randn((b, n, d), &mut g, &dev).unwrap();
+    let grads = |out: Tensor| {
+        out.mul(&probe)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap()
+    };
+    let (g_ours, g_ref) = (grads(ours), grads(reference));
+    for var in [&q, &kv] {
+        let (a, r) = (g_ours.get(var).unwrap(), g_ref.get(var).unwrap());
+        let scale = r
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        assert!(scale > 0.0);
+        assert!(
+            max_abs_diff(a, r) < 1e-4 * (1.0 + scale),
+            "gradient mismatch {} (largest {scale})",
+            max_abs_diff(a, r)
+        );
+    }
+    assert!(cross_attention(q.as_tensor(), kv.as_tensor(), 5).is_err());
+}
