@@ -136,35 +136,76 @@ impl AdamW {
         lr: f64,
         wd: f64,
     ) -> candle_core::Result<()> {
+        self.step_scaled(vars, grads, 1.0, step, lr, wd)
+    }
+
+    /// One update with the gradients multiplied by `grad_scale` (gradient clipping) first.
+    ///
+    /// On the CPU each parameter is updated in one pass over plain slices: the composed version
+    /// ran about fourteen candle ops per parameter tensor (two thousand small ops per step for
+    /// this model, each allocating a tensor of the parameter's size). Other devices use the
+    /// composed ops.
+    pub fn step_scaled(
+        &mut self,
+        vars: &BTreeMap<String, Var>,
+        grads: &BTreeMap<String, Tensor>,
+        grad_scale: f64,
+        step: usize,
+        lr: f64,
+        wd: f64,
+    ) -> candle_core::Result<()> {
         let (b1, b2) = (self.beta1, self.beta2);
         let c1 = 1.0 - b1.powi(step as i32);
         let c2 = 1.0 - b2.powi(step as i32);
         for (name, var) in vars {
             let Some(g) = grads.get(name) else { continue };
-            let m = self
-                .m
-                .get_mut(name)
-                .ok_or_else(|| candle_core::Error::msg(format!("no moment for {name}")))?;
-            // detach(): optimizer state must not record an op graph, or every step would keep the
-            // previous step's tensors alive (a leak of one model copy per step).
-            *m = ((&*m * b1)? + (g * (1.0 - b1))?)?.detach();
-            let v = self
-                .v
-                .get_mut(name)
-                .ok_or_else(|| candle_core::Error::msg(format!("no moment for {name}")))?;
-            *v = ((&*v * b2)? + (g.sqr()? * (1.0 - b2))?)?.detach();
-            let update = ((&*m / c1)? / ((&*v / c2)?.sqrt()? + self.eps)?)?;
+            let missing = || candle_core::Error::msg(format!("no moment for {name}"));
+            let m = self.m.get_mut(name).ok_or_else(missing)?;
+            let v = self.v.get_mut(name).ok_or_else(missing)?;
             // Decoupled weight decay on matrices only (not biases, norms or tables).
             let decay = if var.rank() >= 2 && !name.contains("table") {
                 wd
             } else {
                 0.0
             };
-            let new = ((var.as_tensor() * (1.0 - lr * decay))? - (update * lr)?)?.detach();
-            var.set(&new)?;
+            let w = var.as_tensor();
+            if w.device().is_cpu() && w.dtype() == DType::F32 {
+                let shape = w.shape().clone();
+                let g = flat_f32(g)?;
+                let (mut mv, mut vv, mut wv) = (flat_f32(m)?, flat_f32(v)?, flat_f32(w)?);
+                let (b1, b2, eps) = (b1 as f32, b2 as f32, self.eps as f32);
+                let (inv_c1, inv_c2) = (1.0 / c1 as f32, 1.0 / c2 as f32);
+                let (keep, step_size, gs) =
+                    ((1.0 - lr * decay) as f32, lr as f32, grad_scale as f32);
+                for (((gi, mi), vi), wi) in g.iter().zip(&mut mv).zip(&mut vv).zip(&mut wv) {
+                    let gi = gi * gs;
+                    *mi = b1 * *mi + (1.0 - b1) * gi;
+                    *vi = b2 * *vi + (1.0 - b2) * gi * gi;
+                    let update = (*mi * inv_c1) / ((*vi * inv_c2).sqrt() + eps);
+                    *wi = *wi * keep - step_size * update;
+                }
+                let dev = w.device().clone();
+                *m = Tensor::from_vec(mv, shape.clone(), &dev)?;
+                *v = Tensor::from_vec(vv, shape.clone(), &dev)?;
+                var.set(&Tensor::from_vec(wv, shape, &dev)?)?;
+            } else {
+                let g = (g * grad_scale)?;
+                // detach(): optimizer state must not record an op graph, or every step would
+                // keep the previous step's tensors alive (a leak of one model copy per step).
+                *m = ((&*m * b1)? + (&g * (1.0 - b1))?)?.detach();
+                *v = ((&*v * b2)? + (g.sqr()? * (1.0 - b2))?)?.detach();
+                let update = ((&*m / c1)? / ((&*v / c2)?.sqrt()? + self.eps)?)?;
+                let new = ((w * (1.0 - lr * decay))? - (update * lr)?)?.detach();
+                var.set(&new)?;
+            }
         }
         Ok(())
     }
+}
+
+/// A tensor's values as one f32 vector (a copy; row-major).
+fn flat_f32(t: &Tensor) -> candle_core::Result<Vec<f32>> {
+    t.flatten_all()?.to_dtype(DType::F32)?.to_vec1::<f32>()
 }
 
 /// Learning rate with linear warm-up then cosine decay to 10%.
@@ -466,7 +507,11 @@ impl Trainer {
         let mut sq = 0f64;
         for (name, var) in &self.vars {
             if let Some(t) = grads.get(var) {
-                sq += t.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
+                // One pass on the host instead of three candle ops per parameter.
+                sq += flat_f32(t)?
+                    .iter()
+                    .map(|&x| f64::from(x) * f64::from(x))
+                    .sum::<f64>();
                 g.insert(name.clone(), t.clone());
             }
         }
@@ -481,14 +526,15 @@ impl Trainer {
         } else {
             1.0
         };
-        if scale < 1.0 {
-            for t in g.values_mut() {
-                *t = (&*t * scale)?;
-            }
-        }
         let lr = learning_rate(&self.config, step);
-        self.opt
-            .step(&self.vars, &g, step + 1, lr, self.config.weight_decay)?;
+        self.opt.step_scaled(
+            &self.vars,
+            &g,
+            scale,
+            step + 1,
+            lr,
+            self.config.weight_decay,
+        )?;
         // EMA with a warm-up so early checkpoints are usable.
         let decay = self
             .config
@@ -496,7 +542,17 @@ impl Trainer {
             .min((1.0 + step as f64) / (10.0 + step as f64));
         for (name, var) in &self.vars {
             if let Some(e) = self.ema.get_mut(name) {
-                *e = ((&*e * decay)? + (var.as_tensor() * (1.0 - decay))?)?.detach();
+                let w = var.as_tensor();
+                *e = if w.device().is_cpu() && w.dtype() == DType::F32 {
+                    let (mut ev, wv) = (flat_f32(e)?, flat_f32(w)?);
+                    let (d, rest) = (decay as f32, (1.0 - decay) as f32);
+                    for (a, b) in ev.iter_mut().zip(&wv) {
+                        *a = d * *a + rest * b;
+                    }
+                    Tensor::from_vec(ev, w.shape().clone(), w.device())?
+                } else {
+                    ((&*e * decay)? + (w * (1.0 - decay))?)?.detach()
+                };
             }
         }
         let loss = loss.to_scalar::<f32>()?;

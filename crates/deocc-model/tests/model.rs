@@ -764,3 +764,60 @@ fn fused_cross_attention_matches_the_composed_ops_and_their_gradients() {
     }
     assert!(cross_attention(q.as_tensor(), kv.as_tensor(), 5).is_err());
 }
+
+#[test]
+fn fused_adamw_step_follows_the_adamw_formulas() {
+    use deocc_model::train::AdamW;
+    use std::collections::BTreeMap;
+    let dev = Device::Cpu;
+    let mut g = rng(21);
+    let mut vars = BTreeMap::new();
+    vars.insert(
+        "w".to_string(),
+        Var::from_tensor(&randn((3, 4), &mut g, &dev).unwrap()).unwrap(),
+    );
+    vars.insert(
+        "b".to_string(),
+        Var::from_tensor(&randn(4, &mut g, &dev).unwrap()).unwrap(),
+    );
+    let w0: BTreeMap<String, Vec<f32>> = vars
+        .iter()
+        .map(|(k, v)| (k.clone(), v.flatten_all().unwrap().to_vec1().unwrap()))
+        .collect();
+    let mut opt = AdamW::new(&vars).unwrap();
+    let (lr, wd, scale) = (0.01, 0.1, 0.5);
+    let grads: Vec<BTreeMap<String, Tensor>> = (0..2)
+        .map(|_| {
+            vars.iter()
+                .map(|(k, v)| (k.clone(), randn(v.shape().clone(), &mut g, &dev).unwrap()))
+                .collect()
+        })
+        .collect();
+    for (s, gr) in grads.iter().enumerate() {
+        opt.step_scaled(&vars, gr, scale, s + 1, lr, wd).unwrap();
+    }
+    // The same two steps written out per element in f64.
+    for (name, var) in &vars {
+        let decay = if name == "w" { wd } else { 0.0 };
+        let got: Vec<f32> = var.flatten_all().unwrap().to_vec1().unwrap();
+        for (i, &w_init) in w0[name].iter().enumerate() {
+            let (mut w, mut m, mut v) = (f64::from(w_init), 0.0, 0.0);
+            for (s, gr) in grads.iter().enumerate() {
+                let gi: Vec<f32> = gr[name].flatten_all().unwrap().to_vec1().unwrap();
+                let gi = f64::from(gi[i]) * scale;
+                m = 0.9 * m + 0.1 * gi;
+                v = 0.999 * v + 0.001 * gi * gi;
+                let t = (s + 1) as i32;
+                let update =
+                    (m / (1.0 - 0.9f64.powi(t))) / ((v / (1.0 - 0.999f64.powi(t))).sqrt() + 1e-8);
+                w = w * (1.0 - lr * decay) - lr * update;
+            }
+            assert!(
+                (f64::from(got[i]) - w).abs() < 1e-5,
+                "{name}[{i}]: {} vs {w}",
+                got[i]
+            );
+        }
+        assert_ne!(got, w0[name], "{name} moved");
+    }
+}
