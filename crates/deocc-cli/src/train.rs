@@ -21,6 +21,11 @@ pub struct TrainArgs {
     /// Model preset: tiny, small (shipped), large.
     #[arg(long, default_value = "small")]
     preset: String,
+    /// The mask the residual starts from and condition channel 6 carries: visible,
+    /// hull_in_front or ellipse_in_front. Default: the preset's (ellipse_in_front). Runs started
+    /// before the ellipse prior need hull_in_front to resume.
+    #[arg(long)]
+    mask_prior: Option<String>,
     /// Total optimisation steps (a resumed run continues up to this).
     #[arg(long, default_value_t = 20_000)]
     steps: usize,
@@ -49,9 +54,20 @@ pub struct TrainArgs {
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let Some(model) = GlDotConfig::preset(&a.preset) else {
+    let Some(mut model) = GlDotConfig::preset(&a.preset) else {
         bail!("unknown preset '{}' (known: tiny, small, large)", a.preset);
     };
+    if let Some(name) = &a.mask_prior {
+        model.mask_prior = serde_json::from_value(serde_json::Value::String(name.clone()))
+            .map_err(|_| {
+                anyhow::anyhow!(
+                    "unknown --mask-prior '{name}' (known: visible, hull_in_front, ellipse_in_front)"
+                )
+            })?;
+        model
+            .validate()
+            .map_err(|e| anyhow::anyhow!("--mask-prior {name}: {e}"))?;
+    }
     let files = shards(&a.data, "train")
         .with_context(|| format!("{}: cannot list training pairs", a.data.display()))?;
     if files.is_empty() {

@@ -78,6 +78,16 @@ fn bad_inputs_fail_with_the_file_named() {
     assert!(err.contains("no train-") && err.contains("empty"), "{err}");
 
     let o = deocc()
+        .args(["train", "--mask-prior", "hull", "--run"])
+        .arg(dir.path().join("run2"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--mask-prior 'hull'"), "{err}");
+    assert!(!dir.path().join("run2").exists(), "nothing is written");
+
+    let o = deocc()
         .args(["synth", "scenes", "--preset", "bench-v9", "--out"])
         .arg(dir.path().join("s"))
         .output()
