@@ -159,6 +159,10 @@ pub struct ExportArgs {
     /// Output folder: train.json + ema.safetensors (f16), loadable by `deocc run --weights`.
     #[arg(long)]
     out: PathBuf,
+    /// Mask threshold (in [-1, 1]) to ship in the config; choose it on the validation pairs
+    /// (`deocc eval amodal --split val --mask-thresholds ...`). Default: the run's (0).
+    #[arg(long, allow_hyphen_values = true)]
+    mask_threshold: Option<f32>,
 }
 
 /// Ships a run's EMA weights in half precision (half the size, same completions to within f16
@@ -176,6 +180,17 @@ pub fn export(a: ExportArgs) -> Result<()> {
             );
         }
     }
+    let mut config: TrainConfig = serde_json::from_str(
+        &std::fs::read_to_string(&cfg)
+            .with_context(|| format!("{}: cannot read", cfg.display()))?,
+    )
+    .with_context(|| format!("{}: not a training config", cfg.display()))?;
+    if let Some(th) = a.mask_threshold {
+        if !(-1.0..=1.0).contains(&th) {
+            bail!("--mask-threshold {th} is outside [-1, 1]");
+        }
+        config.mask_threshold = th;
+    }
     let tensors = candle_core::safetensors::load(&ema, &candle_core::Device::Cpu)
         .with_context(|| format!("{}: cannot read", ema.display()))?;
     let half: std::collections::HashMap<String, candle_core::Tensor> = tensors
@@ -188,8 +203,11 @@ pub fn export(a: ExportArgs) -> Result<()> {
     candle_core::safetensors::save(&half, &tmp)
         .with_context(|| format!("{}: cannot write", tmp.display()))?;
     std::fs::rename(&tmp, a.out.join("ema.safetensors"))?;
-    std::fs::copy(&cfg, a.out.join("train.json"))
-        .with_context(|| format!("{}: cannot write", a.out.display()))?;
+    deocc_io::atomic::write_bytes_atomic(
+        &a.out.join("train.json"),
+        serde_json::to_string_pretty(&config)?.as_bytes(),
+    )
+    .with_context(|| format!("{}: cannot write", a.out.display()))?;
     std::fs::copy(&state, a.out.join("state.json"))
         .with_context(|| format!("{}: cannot write", a.out.display()))?;
     println!("exported {} -> {}", a.run.display(), a.out.display());
