@@ -16,7 +16,7 @@ use candle_nn::{Init, VarBuilder};
 
 use crate::config::{AttentionKind, GlDotConfig};
 use crate::ops::{
-    bias_add, cross_attention, depthwise_conv3x3, layer_norm, layer_norm_modulate,
+    bias_add, cross_attention, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear,
     linear_attention_qkv, softmax_attention,
 };
 
@@ -71,8 +71,8 @@ pub fn timestep_embedding(t: &Tensor, dim: usize) -> Result<Tensor> {
 }
 
 /// A linear layer (`weight` (out, in), `bias` (out), the names candle_nn uses) whose input is
-/// flattened to rows so the product is one matrix multiplication, and whose bias goes through
-/// [`bias_add`] for a fast gradient.
+/// flattened to rows so the product is one matrix multiplication, fused with the bias
+/// ([`linear`]).
 struct Linear {
     weight: Tensor,
     bias: Tensor,
@@ -83,12 +83,12 @@ impl Linear {
         let dims = x.dims().to_vec();
         let (inner, out) = (dims[dims.len() - 1], self.weight.dim(0)?);
         let rows = x.elem_count() / inner.max(1);
-        let y = x.reshape((rows, inner))?.matmul(&self.weight.t()?)?;
+        let y = linear(&x.reshape((rows, inner))?, &self.weight, &self.bias)?;
         let mut out_dims = dims;
         *out_dims
             .last_mut()
             .expect("a linear layer's input has a last dimension") = out;
-        bias_add(&y, &self.bias)?.reshape(out_dims)
+        y.reshape(out_dims)
     }
 }
 

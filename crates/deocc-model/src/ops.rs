@@ -930,3 +930,105 @@ impl CustomOp3 for CrossAttentionBackward {
         ))
     }
 }
+
+/// A linear layer on rows: `x` (R, in), `weight` (out, in), `bias` (out) -> `x W^T + b` (R, out).
+/// On the CPU one gemm call accumulates the product into rows pre-filled with the bias: no
+/// zero-filled product buffer and no second pass to add the bias (candle's matmul zero-fills its
+/// output, and the bias add read and wrote it again). The backward is two matrix products and a
+/// row sum. Other devices use the composed ops.
+pub fn linear(x: &Tensor, weight: &Tensor, bias: &Tensor) -> Result<Tensor> {
+    let (_, inner) = x.dims2()?;
+    let (out, w_inner) = weight.dims2()?;
+    if w_inner != inner || bias.dims() != [out] {
+        candle_core::bail!(
+            "linear: x {:?}, weight {:?}, bias {:?} do not fit",
+            x.dims(),
+            weight.dims(),
+            bias.dims()
+        );
+    }
+    if x.device().is_cpu() && [x, weight, bias].iter().all(|t| t.dtype() == DType::F32) {
+        x.contiguous()?
+            .apply_op3(&weight.contiguous()?, &bias.contiguous()?, Linear)
+    } else {
+        x.matmul(&weight.t()?)?.broadcast_add(bias)
+    }
+}
+
+struct Linear;
+
+impl CustomOp3 for Linear {
+    fn name(&self) -> &'static str {
+        "linear"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (&[rows, inner], &[out, _]) = (l1.dims(), l2.dims()) else {
+            candle_core::bail!("linear: x must be (R, in) and weight (out, in)")
+        };
+        let x = contiguous_f32(s1, l1, "linear input")?;
+        let w = contiguous_f32(s2, l2, "linear weight")?;
+        let b = contiguous_f32(s3, l3, "linear bias")?;
+        let mut y = Vec::with_capacity(rows * out);
+        for _ in 0..rows {
+            y.extend_from_slice(b);
+        }
+        if rows > 0 && out > 0 && inner > 0 {
+            let threads = candle_core::utils::get_num_threads();
+            let parallelism = if threads > 1 {
+                gemm::Parallelism::Rayon(threads)
+            } else {
+                gemm::Parallelism::None
+            };
+            // SAFETY: x is rows x inner and w out x inner, both contiguous row-major (checked by
+            // contiguous_f32 and the layouts' dims); y is rows x out. W^T is read through strides.
+            unsafe {
+                gemm::gemm(
+                    rows,
+                    out,
+                    inner,
+                    y.as_mut_ptr(),
+                    1,
+                    out as isize,
+                    true,
+                    x.as_ptr(),
+                    1,
+                    inner as isize,
+                    w.as_ptr(),
+                    inner as isize,
+                    1,
+                    1.0,
+                    1.0,
+                    false,
+                    false,
+                    false,
+                    parallelism,
+                );
+            }
+        }
+        Ok((CpuStorage::F32(y), Shape::from_dims(&[rows, out])))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        weight: &Tensor,
+        _bias: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let grad = grad.contiguous()?;
+        let dx = grad.matmul(weight)?;
+        let dw = grad.t()?.matmul(x)?;
+        let db = grad.apply_op1_no_bwd(&RowSum)?;
+        Ok((Some(dx), Some(dw), Some(db)))
+    }
+}

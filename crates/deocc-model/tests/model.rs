@@ -821,3 +821,42 @@ fn fused_adamw_step_follows_the_adamw_formulas() {
         assert_ne!(got, w0[name], "{name} moved");
     }
 }
+
+#[test]
+fn fused_linear_matches_matmul_plus_bias_and_its_gradients() {
+    use deocc_model::ops::linear;
+    let dev = Device::Cpu;
+    let mut g = rng(31);
+    let x = Var::from_tensor(&randn((37, 11), &mut g, &dev).unwrap()).unwrap();
+    let w = Var::from_tensor(&randn((5, 11), &mut g, &dev).unwrap()).unwrap();
+    let b = Var::from_tensor(&randn(5, &mut g, &dev).unwrap()).unwrap();
+    let ours = linear(x.as_tensor(), w.as_tensor(), b.as_tensor()).unwrap();
+    let reference = x
+        .as_tensor()
+        .matmul(&w.as_tensor().t().unwrap())
+        .unwrap()
+        .broadcast_add(b.as_tensor())
+        .unwrap();
+    assert_eq!(ours.dims(), &[37, 5]);
+    assert!(max_abs_diff(&ours, &reference) < 1e-5);
+    let probe = randn((37, 5), &mut g, &dev).unwrap();
+    let grads = |out: Tensor| {
+        out.mul(&probe)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap()
+    };
+    let (g_ours, g_ref) = (grads(ours), grads(reference));
+    for var in [&x, &w, &b] {
+        let (a, r) = (g_ours.get(var).unwrap(), g_ref.get(var).unwrap());
+        assert_eq!(a.dims(), var.dims());
+        assert!(
+            max_abs_diff(a, r) < 1e-4,
+            "gradient mismatch {}",
+            max_abs_diff(a, r)
+        );
+    }
+    assert!(linear(x.as_tensor(), &w.as_tensor().t().unwrap(), b.as_tensor()).is_err());
+}
