@@ -17,7 +17,7 @@ use candle_nn::{Init, VarBuilder};
 use crate::config::{AttentionKind, GlDotConfig};
 use crate::ops::{
     bias_add, cross_attention, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear,
-    linear_attention_qkv, softmax_attention,
+    linear_attention_qkv, silu_gate, softmax_attention,
 };
 
 const LN_EPS: f64 = 1e-6;
@@ -213,11 +213,7 @@ impl MixFfn {
         let y = y.reshape((b, self.grid, self.grid, 2 * self.hidden))?;
         let y = bias_add(&depthwise_conv3x3(&y, &self.dw_weight)?, &self.dw_bias)?;
         let y = y.reshape((b, n, 2 * self.hidden))?;
-        let (v, gate) = (
-            y.narrow(2, 0, self.hidden)?,
-            y.narrow(2, self.hidden, self.hidden)?,
-        );
-        self.point.forward(&(v * candle_nn::ops::silu(&gate)?)?)
+        self.point.forward(&silu_gate(&y)?)
     }
 }
 

@@ -1032,3 +1032,113 @@ impl CustomOp3 for Linear {
         Ok((Some(dx), Some(dw), Some(db)))
     }
 }
+
+/// SANA's gated Mix-FFN activation on a (..., 2H) input: `y[..., :H] * silu(y[..., H:])`, (..., H).
+/// One pass forward, and a backward that writes the whole (..., 2H) gradient at once (the
+/// composed version's two narrows each pad their gradient back to full width with zeros and
+/// add). CPU f32 custom op; other devices use the composed ops.
+pub fn silu_gate(y: &Tensor) -> Result<Tensor> {
+    let two_h = *y.dims().last().unwrap_or(&0);
+    if two_h % 2 != 0 {
+        candle_core::bail!("silu_gate: the last dimension ({two_h}) must be even");
+    }
+    if y.device().is_cpu() && y.dtype() == DType::F32 {
+        y.contiguous()?.apply_op1(SiluGate)
+    } else {
+        let d = y.rank() - 1;
+        let h = two_h / 2;
+        y.narrow(d, 0, h)? * candle_nn::ops::silu(&y.narrow(d, h, h)?)?
+    }
+}
+
+fn sigmoid(z: f32) -> f32 {
+    1.0 / (1.0 + (-z).exp())
+}
+
+struct SiluGate;
+
+impl candle_core::CustomOp1 for SiluGate {
+    fn name(&self) -> &'static str {
+        "silu-gate"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let two_h = *l.dims().last().unwrap_or(&0);
+        let h = two_h / 2;
+        let y = contiguous_f32(s, l, "silu_gate input")?;
+        let mut out = vec![0f32; y.len() / 2];
+        if h > 0 {
+            crate::pool::for_each_chunk_mut(&mut out, 64 * h, |k, o| {
+                let src = &y[k * 128 * h..][..o.len() * 2];
+                for (orow, row) in o.chunks_exact_mut(h).zip(src.chunks_exact(two_h)) {
+                    let (v, gate) = row.split_at(h);
+                    for ((ov, vv), gv) in orow.iter_mut().zip(v).zip(gate) {
+                        *ov = vv * gv * sigmoid(*gv);
+                    }
+                }
+            });
+        }
+        let mut dims = l.dims().to_vec();
+        if let Some(last) = dims.last_mut() {
+            *last = h;
+        }
+        Ok((CpuStorage::F32(out), Shape::from_dims(&dims)))
+    }
+
+    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
+        Ok(Some(arg.apply_op2_no_bwd(
+            &grad.contiguous()?,
+            &SiluGateBackward,
+        )?))
+    }
+}
+
+/// d v = g silu(gate); d gate = g v s (1 + gate (1 - s)) with s = sigmoid(gate).
+struct SiluGateBackward;
+
+impl CustomOp2 for SiluGateBackward {
+    fn name(&self) -> &'static str {
+        "silu-gate-backward"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let two_h = *l1.dims().last().unwrap_or(&0);
+        let h = two_h / 2;
+        let y = contiguous_f32(s1, l1, "silu_gate input")?;
+        let g = contiguous_f32(s2, l2, "silu_gate output gradient")?;
+        if g.len() * 2 != y.len() {
+            candle_core::bail!(
+                "silu_gate gradient {:?} for input {:?}",
+                l2.dims(),
+                l1.dims()
+            );
+        }
+        let mut dy = vec![0f32; y.len()];
+        if h > 0 {
+            crate::pool::for_each_chunk_mut(&mut dy, 64 * two_h, |k, d| {
+                let src = &y[k * 64 * two_h..][..d.len()];
+                let gs = &g[k * 64 * h..][..d.len() / 2];
+                for ((drow, row), grow) in d
+                    .chunks_exact_mut(two_h)
+                    .zip(src.chunks_exact(two_h))
+                    .zip(gs.chunks_exact(h))
+                {
+                    let (dv, dgate) = drow.split_at_mut(h);
+                    let (v, gate) = row.split_at(h);
+                    for j in 0..h {
+                        let s = sigmoid(gate[j]);
+                        dv[j] = grow[j] * gate[j] * s;
+                        dgate[j] = grow[j] * v[j] * s * (1.0 + gate[j] * (1.0 - s));
+                    }
+                }
+            });
+        }
+        Ok((CpuStorage::F32(dy), l1.shape().clone()))
+    }
+}

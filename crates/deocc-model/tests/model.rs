@@ -860,3 +860,35 @@ fn fused_linear_matches_matmul_plus_bias_and_its_gradients() {
     }
     assert!(linear(x.as_tensor(), &w.as_tensor().t().unwrap(), b.as_tensor()).is_err());
 }
+
+#[test]
+fn fused_silu_gate_matches_the_composed_ops_and_their_gradients() {
+    use deocc_model::ops::silu_gate;
+    let dev = Device::Cpu;
+    let mut g = rng(41);
+    // 2 x 70 rows: more than one chunk of the pool's loops, and a partial last chunk.
+    let y = Var::from_tensor(&(randn((2, 70, 10), &mut g, &dev).unwrap() * 3.0).unwrap()).unwrap();
+    let ours = silu_gate(y.as_tensor()).unwrap();
+    let reference = (y.as_tensor().narrow(2, 0, 5).unwrap()
+        * candle_nn::ops::silu(&y.as_tensor().narrow(2, 5, 5).unwrap()).unwrap())
+    .unwrap();
+    assert_eq!(ours.dims(), &[2, 70, 5]);
+    assert!(max_abs_diff(&ours, &reference) < 1e-5);
+    let probe = randn((2, 70, 5), &mut g, &dev).unwrap();
+    let grads = |out: Tensor| {
+        out.mul(&probe)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap()
+    };
+    let (a, r) = (grads(ours), grads(reference));
+    let (a, r) = (a.get(&y).unwrap(), r.get(&y).unwrap());
+    assert!(
+        max_abs_diff(a, r) < 1e-4,
+        "gradient mismatch {}",
+        max_abs_diff(a, r)
+    );
+    assert!(silu_gate(&randn((2, 3), &mut g, &dev).unwrap()).is_err());
+}
