@@ -569,6 +569,20 @@ fn small_matmul(
     }
 }
 
+/// Per-(sample, head) outputs (task = sample * heads + head, each N x hd) merged into
+/// (B, N, heads * hd), heads side by side.
+fn merge_heads(parts: &[Vec<f32>], b: usize, n: usize, heads: usize, hd: usize) -> Vec<f32> {
+    let d = heads * hd;
+    let mut out = vec![0f32; b * n * d];
+    for (task, part) in parts.iter().enumerate() {
+        let (bi, h) = (task / heads, task % heads);
+        for i in 0..n {
+            out[(bi * n + i) * d + h * hd..][..hd].copy_from_slice(&part[i * hd..][..hd]);
+        }
+    }
+    out
+}
+
 /// One (sample, head) of linear attention: relu(q), relu(k) and [v, 1] gathered contiguous, and
 /// `kv` (hd x (hd + 1)) = relu(k)^T [v, 1], whose last column is the key sum (the normaliser).
 struct HeadTerms {
@@ -630,13 +644,7 @@ impl candle_core::CustomOp1 for LinearAttentionQkv {
             }
             out
         });
-        let mut out = vec![0f32; b * n * dm];
-        for (task, part) in heads.iter().enumerate() {
-            let (bi, h) = (task / self.heads, task % self.heads);
-            for i in 0..n {
-                out[(bi * n + i) * dm + h * hd..][..hd].copy_from_slice(&part[i * hd..][..hd]);
-            }
-        }
+        let out = merge_heads(&heads, b, n, self.heads, hd);
         Ok((CpuStorage::F32(out), Shape::from_dims(&[b, n, dm])))
     }
 
@@ -830,13 +838,7 @@ impl CustomOp2 for CrossAttention {
             small_matmul(n, hd, m, &mut out, &p, (m, 1), &kv0[d..], (2 * d, 1));
             out
         });
-        let mut out = vec![0f32; b * n * d];
-        for (task, part) in heads.iter().enumerate() {
-            let (bi, h) = (task / self.heads, task % self.heads);
-            for i in 0..n {
-                out[(bi * n + i) * d + h * hd..][..hd].copy_from_slice(&part[i * hd..][..hd]);
-            }
-        }
+        let out = merge_heads(&heads, b, n, self.heads, hd);
         Ok((CpuStorage::F32(out), Shape::from_dims(&[b, n, d])))
     }
 
