@@ -16,8 +16,8 @@ use candle_nn::{Init, VarBuilder};
 
 use crate::config::{AttentionKind, GlDotConfig};
 use crate::ops::{
-    bias_add, cross_attention, depthwise_conv3x3, layer_norm, layer_norm_modulate, linear,
-    linear_attention_qkv, silu_gate, softmax_attention,
+    bias_add, cross_attention, depthwise_conv3x3, gelu, layer_norm, layer_norm_modulate, linear,
+    linear_attention_qkv, silu, silu_gate, softmax_attention,
 };
 
 const LN_EPS: f64 = 1e-6;
@@ -209,7 +209,7 @@ impl MixFfn {
     }
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let (b, n, _) = x.dims3()?;
-        let y = candle_nn::ops::silu(&self.inverted.forward(x)?)?;
+        let y = silu(&self.inverted.forward(x)?)?;
         let y = y.reshape((b, self.grid, self.grid, 2 * self.hidden))?;
         let y = bias_add(&depthwise_conv3x3(&y, &self.dw_weight)?, &self.dw_bias)?;
         let y = y.reshape((b, n, 2 * self.hidden))?;
@@ -280,7 +280,7 @@ impl EncoderBlock {
         let h = layer_norm(x, LN_EPS)?.broadcast_mul(&self.ln1_w)?;
         let x = (x + self.attn.forward(&h)?)?;
         let h = layer_norm(&x, LN_EPS)?.broadcast_mul(&self.ln2_w)?;
-        &x + self.fc2.forward(&self.fc1.forward(&h)?.gelu()?)?
+        &x + self.fc2.forward(&gelu(&self.fc1.forward(&h)?)?)?
     }
 }
 
@@ -399,13 +399,13 @@ impl GlDot {
             .x_embed
             .forward(&patchify(&x, cfg.patch)?)?
             .broadcast_add(&self.pos)?;
-        let t_emb = self.t_fc2.forward(&candle_nn::ops::silu(
-            &self.t_fc1.forward(&timestep_embedding(t, 256)?)?,
-        )?)?; // (B, D)
+        let t_emb = self
+            .t_fc2
+            .forward(&silu(&self.t_fc1.forward(&timestep_embedding(t, 256)?)?)?)?; // (B, D)
         let b = t_emb.dim(0)?;
         let t_mod = self
             .t_block
-            .forward(&candle_nn::ops::silu(&t_emb)?)?
+            .forward(&silu(&t_emb)?)?
             .reshape((b, 6, cfg.width))?;
         for block in &self.blocks {
             x = block.forward(&x, cond_tokens, &t_mod)?;

@@ -822,24 +822,16 @@ fn fused_adamw_step_follows_the_adamw_formulas() {
     }
 }
 
-#[test]
-fn fused_linear_matches_matmul_plus_bias_and_its_gradients() {
-    use deocc_model::ops::linear;
-    let dev = Device::Cpu;
-    let mut g = rng(31);
-    let x = Var::from_tensor(&randn((37, 11), &mut g, &dev).unwrap()).unwrap();
-    let w = Var::from_tensor(&randn((5, 11), &mut g, &dev).unwrap()).unwrap();
-    let b = Var::from_tensor(&randn(5, &mut g, &dev).unwrap()).unwrap();
-    let ours = linear(x.as_tensor(), w.as_tensor(), b.as_tensor()).unwrap();
-    let reference = x
-        .as_tensor()
-        .matmul(&w.as_tensor().t().unwrap())
-        .unwrap()
-        .broadcast_add(b.as_tensor())
-        .unwrap();
-    assert_eq!(ours.dims(), &[37, 5]);
-    assert!(max_abs_diff(&ours, &reference) < 1e-5);
-    let probe = randn((37, 5), &mut g, &dev).unwrap();
+/// Asserts that two computations of the same function have the same gradient with respect to
+/// each of `vars`, through a random linear probe of their outputs.
+fn assert_same_gradients(
+    ours: Tensor,
+    reference: Tensor,
+    vars: &[&Var],
+    tolerance: f32,
+    seed: u64,
+) {
+    let probe = randn(ours.dims(), &mut rng(seed), ours.device()).unwrap();
     let grads = |out: Tensor| {
         out.mul(&probe)
             .unwrap()
@@ -849,16 +841,75 @@ fn fused_linear_matches_matmul_plus_bias_and_its_gradients() {
             .unwrap()
     };
     let (g_ours, g_ref) = (grads(ours), grads(reference));
-    for var in [&x, &w, &b] {
+    for (i, var) in vars.iter().enumerate() {
         let (a, r) = (g_ours.get(var).unwrap(), g_ref.get(var).unwrap());
         assert_eq!(a.dims(), var.dims());
-        assert!(
-            max_abs_diff(a, r) < 1e-4,
-            "gradient mismatch {}",
-            max_abs_diff(a, r)
-        );
+        let diff = max_abs_diff(a, r);
+        assert!(diff < tolerance, "gradient of input {i}: mismatch {diff}");
     }
-    assert!(linear(x.as_tensor(), &w.as_tensor().t().unwrap(), b.as_tensor()).is_err());
+}
+
+#[test]
+fn fused_linear_matches_matmul_plus_bias_and_its_gradients() {
+    use deocc_model::ops::linear;
+    let dev = Device::Cpu;
+    let mut g = rng(31);
+    // A small layer (one gemm block) and one large enough that the products are split into
+    // row blocks across the pool, with a partial last block (613 rows).
+    for (rows, inner, out, tolerance) in [(37, 11, 5, 1e-4), (613, 64, 96, 1e-3)] {
+        let x = Var::from_tensor(&randn((rows, inner), &mut g, &dev).unwrap()).unwrap();
+        let w = Var::from_tensor(&randn((out, inner), &mut g, &dev).unwrap()).unwrap();
+        let b = Var::from_tensor(&randn(out, &mut g, &dev).unwrap()).unwrap();
+        let ours = linear(x.as_tensor(), w.as_tensor(), b.as_tensor()).unwrap();
+        let reference = x
+            .as_tensor()
+            .matmul(&w.as_tensor().t().unwrap())
+            .unwrap()
+            .broadcast_add(b.as_tensor())
+            .unwrap();
+        assert_eq!(ours.dims(), &[rows, out]);
+        assert!(max_abs_diff(&ours, &reference) < tolerance);
+        assert_same_gradients(ours, reference, &[&x, &w, &b], tolerance, 32);
+        assert!(linear(x.as_tensor(), &w.as_tensor().t().unwrap(), b.as_tensor()).is_err());
+    }
+}
+
+#[test]
+fn fused_activations_match_candle_and_their_gradients() {
+    use deocc_model::ops::{gelu, silu};
+    let dev = Device::Cpu;
+    // 40,000 elements: more than one chunk of the pool's loops; values out to +-12 reach the
+    // saturated tails of the sigmoid.
+    let x =
+        Var::from_tensor(&(randn((40, 1000), &mut rng(43), &dev).unwrap() * 4.0).unwrap()).unwrap();
+    let cases: [(Tensor, Tensor); 2] = [
+        (
+            silu(x.as_tensor()).unwrap(),
+            candle_nn::ops::silu(x.as_tensor()).unwrap(),
+        ),
+        (gelu(x.as_tensor()).unwrap(), x.as_tensor().gelu().unwrap()),
+    ];
+    for (ours, reference) in cases {
+        assert_eq!(ours.dims(), x.dims());
+        let diff = max_abs_diff(&ours, &reference);
+        assert!(diff < 1e-5, "values differ by {diff}");
+        assert_same_gradients(ours, reference, &[&x], 1e-5, 44);
+    }
+}
+
+#[test]
+fn fast_exp_is_accurate_over_the_float_range() {
+    use deocc_model::ops::fast_exp;
+    let mut worst = 0f64;
+    for i in 0..=200_000 {
+        let x = -87.0 + 175.0 * i as f32 / 200_000.0;
+        let exact = f64::from(x).exp();
+        worst = worst.max(((f64::from(fast_exp(x)) - exact) / exact).abs());
+    }
+    assert!(worst < 5e-7, "relative error {worst}");
+    assert_eq!(fast_exp(0.0), 1.0);
+    // Clamped, not infinite or NaN, far outside the range.
+    assert!(fast_exp(1000.0).is_finite() && fast_exp(-1000.0) >= 0.0);
 }
 
 #[test]
