@@ -88,7 +88,7 @@ fn model_bench(a: ModelArgs) -> Result<()> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     let (r, tc, cc) = (cfg.resolution, cfg.target_channels, cfg.cond_channels);
     let mut step = 0;
-    let (train_s, _) = median_time(5, || {
+    let (train_s, _) = warm_median_time(5, || {
         let b = 8;
         let x0 = randn((b, r, r, tc), &mut rng, &dev)?;
         let cond = randn((b, r, r, cc), &mut rng, &dev)?;
@@ -139,9 +139,9 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         GlDot::new(&cfg, VarBuilder::from_tensors(tensors, DType::F32, &dev))?
     };
     let model = frozen;
-    let (fwd_s, _) = median_time(10, || forward(&model, &cfg, 1, &mut rng))?;
+    let (fwd_s, _) = warm_median_time(10, || forward(&model, &cfg, 1, &mut rng))?;
     let mut complete = |b: usize| -> Result<f64> {
-        Ok(median_time(5, || {
+        Ok(warm_median_time(5, || {
             let cond = randn((b, r, r, cc), &mut rng, &dev)?;
             let toks = model.encode(&cond)?;
             let noise = randn((b, r, r, tc), &mut rng, &dev)?;
@@ -165,8 +165,8 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         big.resolution = 128;
         let (ms, _) = build(&small)?;
         let (mb, _) = build(&big)?;
-        let (ts, _) = median_time(5, || forward(&ms, &small, 1, &mut rng))?;
-        let (tb, _) = median_time(3, || forward(&mb, &big, 1, &mut rng))?;
+        let (ts, _) = warm_median_time(5, || forward(&ms, &small, 1, &mut rng))?;
+        let (tb, _) = warm_median_time(3, || forward(&mb, &big, 1, &mut rng))?;
         scaling[k] = tb / ts;
     }
     let torch = if a.no_torch {
@@ -404,6 +404,15 @@ struct Report {
     rows: Vec<Row>,
 }
 
+/// [`median_time`] after one untimed warm-up call (first-touch page faults, lazily built thread
+/// pools): the protocol of scripts/bench_torch.py's `median_time`, so the model comparison times
+/// both sides alike.
+fn warm_median_time<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
+    f()?;
+    median_time(repeats, f)
+}
+
+/// Median wall time of `repeats` calls (the protocol of scripts/bench_open3d.py's `timed`).
 fn median_time<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
     let mut times = Vec::new();
     let mut out = None;

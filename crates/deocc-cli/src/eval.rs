@@ -338,6 +338,12 @@ pub struct AmodalArgs {
     /// Override the model's mask threshold (from its train.json) for every figure.
     #[arg(long, allow_hyphen_values = true)]
     mask_threshold: Option<f32>,
+    /// Override the samples averaged per completion (from its train.json; 1 if absent).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
+    samples: Option<u32>,
+    /// Override whether the geometric prior's pixels are always kept (from its train.json).
+    #[arg(long)]
+    keep_prior: Option<bool>,
 }
 
 pub fn run(cmd: EvalCommand) -> Result<()> {
@@ -392,6 +398,12 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     let mut completer = Completer::from_dir(&a.weights, &candle_core::Device::Cpu)?;
     if let Some(th) = a.mask_threshold {
         completer.mask_threshold = th;
+    }
+    if let Some(n) = a.samples {
+        completer.samples = n as usize;
+    }
+    if let Some(keep) = a.keep_prior {
+        completer.keep_prior = keep;
     }
     let data = test_pairs(a.data.as_ref(), &a.split, a.pairs)?
         .with_mask_prior(completer.model.config.mask_prior);

@@ -61,7 +61,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         model.mask_prior = serde_json::from_value(serde_json::Value::String(name.clone()))
             .map_err(|_| {
                 anyhow::anyhow!(
-                    "unknown --mask-prior '{name}' (known: visible, hull_in_front, ellipse_in_front)"
+                    "unknown --mask-prior '{name}' (known: visible, hull_in_front, ellipse_in_front, ellipse_or_box_in_front)"
                 )
             })?;
         model
@@ -163,6 +163,11 @@ pub struct ExportArgs {
     /// (`deocc eval amodal --split val --mask-thresholds ...`). Default: the run's (0).
     #[arg(long, allow_hyphen_values = true)]
     mask_threshold: Option<f32>,
+    /// Ship the rule that keeps every pixel of the geometric prior in the amodal mask (the model
+    /// only adds pixels); choose it on the validation pairs (`deocc eval amodal --split val
+    /// --keep-prior true|false`).
+    #[arg(long)]
+    keep_prior: Option<bool>,
 }
 
 /// Ships a run's EMA weights in half precision (half the size, same completions to within f16
@@ -190,6 +195,9 @@ pub fn export(a: ExportArgs) -> Result<()> {
             bail!("--mask-threshold {th} is outside [-1, 1]");
         }
         config.mask_threshold = th;
+    }
+    if let Some(keep) = a.keep_prior {
+        config.mask_keeps_prior = keep;
     }
     let tensors = candle_core::safetensors::load(&ema, &candle_core::Device::Cpu)
         .with_context(|| format!("{}: cannot read", ema.display()))?;

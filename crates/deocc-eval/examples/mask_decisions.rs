@@ -43,6 +43,11 @@ fn main() -> Result<()> {
         removed_right: usize,
     }
     let mut c = Counts::default();
+    // mIoU when the prior's pixels are kept unless the mask score is below `keep` and other
+    // pixels are added where it is above `add` (one threshold for both is the completer's rule).
+    const ADD: [f32; 7] = [-0.8, -0.4, 0.0, 0.4, 0.8, 1.2, f32::INFINITY];
+    const KEEP: [f32; 6] = [f32::NEG_INFINITY, -1.6, -1.2, -0.8, -0.4, 0.0];
+    let mut iou_sum = [[0f64; KEEP.len()]; ADD.len()];
     for chunk in idx.chunks(16) {
         let (_, cond) = data.batch(chunk, &vec![false; chunk.len()], &device)?;
         let out = completer.complete(&cond, &[], 0.0, 4, 0)?;
@@ -51,6 +56,28 @@ fn main() -> Result<()> {
             let visible = data.visible_mask(i);
             let prior = data.condition_prior(i);
             let scene = &data.set.scene_depth[i * r * r..(i + 1) * r * r];
+            for (a, &add) in ADD.iter().enumerate() {
+                for (k, &keep) in KEEP.iter().enumerate() {
+                    let (mut inter, mut union) = (0usize, 0usize);
+                    for p in 0..r * r {
+                        let score = comp.mask_score[p];
+                        let m = visible[p] > 0
+                            || if prior[p] {
+                                keep == f32::NEG_INFINITY || score > keep
+                            } else {
+                                score > add
+                            };
+                        let t = truth[p] > 0;
+                        inter += (m && t) as usize;
+                        union += (m || t) as usize;
+                    }
+                    iou_sum[a][k] += if union == 0 {
+                        1.0
+                    } else {
+                        inter as f64 / union as f64
+                    };
+                }
+            }
             for p in 0..r * r {
                 let (t, v, pr, m) = (truth[p] > 0, visible[p] > 0, prior[p], comp.amodal[p]);
                 c.prior_missed += (t && !pr) as usize;
@@ -88,5 +115,18 @@ fn main() -> Result<()> {
         per(c.removed),
         per(c.removed_right)
     );
+    println!("  mIoU by add threshold (rows) and keep threshold (columns; -inf: keep every prior pixel):");
+    print!("  {:>8}", "");
+    for keep in KEEP {
+        print!(" {keep:>7.1}");
+    }
+    println!();
+    for (a, add) in ADD.iter().enumerate() {
+        print!("  {add:>8.1}");
+        for sum in iou_sum[a] {
+            print!(" {:>7.4}", sum / n as f64);
+        }
+        println!();
+    }
     Ok(())
 }

@@ -94,6 +94,10 @@ pub struct AmodalReport {
     pub miou_baseline_convex_hull_in_front: f64,
     /// The ellipse prior ([`deocc_model::data::ellipse_prior`]), also without a model.
     pub miou_baseline_ellipse_in_front: f64,
+    /// The geometric prior the model was trained on (its condition channel 6), without a model:
+    /// the figure the model's mask has to beat to be worth its cost.
+    pub mask_prior: deocc_model::config::MaskPrior,
+    pub miou_baseline_model_prior: f64,
     /// The model's mask (main steps) united with that baseline.
     pub miou_model_or_hull_in_front: f64,
     /// Whether the completer applied its free-space constraint, and the main-steps mIoU with it
@@ -103,6 +107,10 @@ pub struct AmodalReport {
     pub main_steps: usize,
     /// The completer's mask threshold, and the main-steps mIoU at other thresholds.
     pub mask_threshold: f32,
+    /// Samples averaged per completion (every figure above).
+    pub samples_per_completion: usize,
+    /// Whether the completer keeps every prior pixel (the model only adds).
+    pub keep_prior: bool,
     pub miou_by_mask_threshold: BTreeMap<String, f64>,
     /// Figures at `main_steps`, by occlusion level (light: 10-40% hidden, heavy: over 40%).
     pub light: GroupFigures,
@@ -177,6 +185,7 @@ pub fn evaluate_amodal(
     let iou_hull: Vec<f64> = (0..n).map(|k| iou(&hulls[k], &truth[k])).collect();
     let hull_in_front: Vec<Vec<bool>> = idx.iter().map(|&i| data.hull_prior(i)).collect();
     let ellipse_in_front: Vec<Vec<bool>> = idx.iter().map(|&i| data.ellipse_prior(i)).collect();
+    let model_prior: Vec<Vec<bool>> = idx.iter().map(|&i| data.condition_prior(i)).collect();
 
     let mut miou_by_steps = BTreeMap::new();
     let mut main: Option<(Vec<f64>, Vec<Completion>)> = None;
@@ -347,6 +356,8 @@ pub fn evaluate_amodal(
         miou_main_steps_without_free_space,
         miou_baseline_convex_hull_in_front: mean((0..n).map(|k| iou(&hull_in_front[k], &truth[k]))),
         miou_baseline_ellipse_in_front: mean((0..n).map(|k| iou(&ellipse_in_front[k], &truth[k]))),
+        mask_prior: c.model.config.mask_prior,
+        miou_baseline_model_prior: mean((0..n).map(|k| iou(&model_prior[k], &truth[k]))),
         miou_model_or_hull_in_front: mean((0..n).map(|k| {
             let united: Vec<bool> = main_comp[k]
                 .amodal
@@ -358,6 +369,8 @@ pub fn evaluate_amodal(
         })),
         main_steps: opts.main_steps,
         mask_threshold: c.mask_threshold,
+        samples_per_completion: c.samples,
+        keep_prior: c.keep_prior,
         miou_by_mask_threshold,
         light,
         heavy,

@@ -46,34 +46,16 @@ pub fn hull_prior(visible: &[bool], scene_rel_depth: &[f32], r: usize) -> Vec<bo
 /// Measured without a model on 300 validation pairs: mIoU 0.816 against 0.780 for [`hull_prior`].
 pub fn ellipse_prior(visible: &[bool], scene_rel_depth: &[f32], r: usize) -> Vec<bool> {
     let mut prior = hull_prior(visible, scene_rel_depth, r);
-    let at = |u: usize, v: usize| v * r + u;
-    let mut contour: Vec<(f64, f64)> = Vec::new();
-    for v in 0..r {
-        for u in 0..r {
-            if !visible[at(u, v)] {
-                continue;
-            }
-            let neighbours = [
-                (u > 0).then(|| at(u - 1, v)),
-                (u + 1 < r).then(|| at(u + 1, v)),
-                (v > 0).then(|| at(u, v - 1)),
-                (v + 1 < r).then(|| at(u, v + 1)),
-            ];
-            let silhouette = neighbours
-                .iter()
-                .flatten()
-                .any(|&q| !visible[q] && scene_rel_depth[q] >= 0.0);
-            if silhouette {
-                contour.push(((u as f64 + 0.5) / r as f64, (v as f64 + 0.5) / r as f64));
-            }
-        }
-    }
-    const MIN_CONTOUR: usize = 8;
-    const MAX_AREA_OVER_VISIBLE: usize = 3;
-    if contour.len() < MIN_CONTOUR {
+    let contour = silhouette_pixels(visible, scene_rel_depth, r);
+    if contour.len() < MIN_SILHOUETTE {
         return prior;
     }
-    let Some(q) = fit_ellipse(&contour) else {
+    let points: Vec<(f64, f64)> = contour
+        .iter()
+        .map(|&(u, v)| ((u as f64 + 0.5) / r as f64, (v as f64 + 0.5) / r as f64))
+        .collect();
+    const MAX_AREA_OVER_VISIBLE: usize = 3;
+    let Some(q) = fit_ellipse(&points) else {
         return prior;
     };
     let value = |p: usize| {
@@ -95,6 +77,63 @@ pub fn ellipse_prior(visible: &[bool], scene_rel_depth: &[f32], r: usize) -> Vec
     prior
 }
 
+/// Fewest silhouette pixels a shape is fitted to.
+const MIN_SILHOUETTE: usize = 8;
+
+/// The object's own silhouette, (u, v) pixels: visible pixels next to a pixel (inside the crop)
+/// that is neither the object nor in front of it. There the object's outline ends, while next
+/// to an occluder it only stops being seen.
+fn silhouette_pixels(visible: &[bool], scene_rel_depth: &[f32], r: usize) -> Vec<(usize, usize)> {
+    let at = |u: usize, v: usize| v * r + u;
+    let mut contour = Vec::new();
+    for v in 0..r {
+        for u in 0..r {
+            if !visible[at(u, v)] {
+                continue;
+            }
+            let neighbours = [
+                (u > 0).then(|| at(u - 1, v)),
+                (u + 1 < r).then(|| at(u + 1, v)),
+                (v > 0).then(|| at(u, v - 1)),
+                (v + 1 < r).then(|| at(u, v + 1)),
+            ];
+            let silhouette = neighbours
+                .iter()
+                .flatten()
+                .any(|&q| !visible[q] && scene_rel_depth[q] >= 0.0);
+            if silhouette {
+                contour.push((u, v));
+            }
+        }
+    }
+    contour
+}
+
+/// The ellipse-or-box prior: [`ellipse_prior`], plus the pixels where the scene is in front inside
+/// the image-axis-aligned bounding box of the object's silhouette pixels. Upright boxes, books,
+/// cans and bottles project to silhouettes that fill their bounding box better than an ellipse
+/// does (their hidden corners), and the seen outline already spans the object's extent along
+/// the sides where it is seen. Measured without a model on 300 validation pairs: mIoU 0.825
+/// against 0.816 for the ellipse prior (`deocc eval amodal --split val`, baseline fields).
+pub fn ellipse_or_box_prior(visible: &[bool], scene_rel_depth: &[f32], r: usize) -> Vec<bool> {
+    let mut prior = ellipse_prior(visible, scene_rel_depth, r);
+    let contour = silhouette_pixels(visible, scene_rel_depth, r);
+    if contour.len() < MIN_SILHOUETTE {
+        return prior;
+    }
+    let (mut u0, mut u1, mut v0, mut v1) = (r, 0, r, 0);
+    for &(u, v) in &contour {
+        (u0, u1, v0, v1) = (u0.min(u), u1.max(u), v0.min(v), v1.max(v));
+    }
+    for v in v0..=v1 {
+        for u in u0..=u1 {
+            let p = v * r + u;
+            prior[p] |= scene_rel_depth[p] < 0.0;
+        }
+    }
+    prior
+}
+
 /// The mask of condition channel 6 for a model with this residual prior. Models trained with the
 /// visible or the hull prior were given the hull there.
 pub fn condition_prior(
@@ -106,6 +145,7 @@ pub fn condition_prior(
     match kind {
         MaskPrior::Visible | MaskPrior::HullInFront => hull_prior(visible, scene_rel_depth, r),
         MaskPrior::EllipseInFront => ellipse_prior(visible, scene_rel_depth, r),
+        MaskPrior::EllipseOrBoxInFront => ellipse_or_box_prior(visible, scene_rel_depth, r),
     }
 }
 
@@ -306,7 +346,9 @@ pub fn residual_prior(cond: &Tensor, mask_prior: MaskPrior) -> Result<Tensor> {
     let prior_depth = depth.mul(&vis)?;
     let mask = match mask_prior {
         MaskPrior::Visible => vis_mask,
-        MaskPrior::HullInFront | MaskPrior::EllipseInFront => cond.narrow(3, 6, 1)?,
+        MaskPrior::HullInFront | MaskPrior::EllipseInFront | MaskPrior::EllipseOrBoxInFront => {
+            cond.narrow(3, 6, 1)?
+        }
     };
     Tensor::cat(&[&prior_rgb, &mask, &prior_depth, &prior_depth], 3)
 }

@@ -28,6 +28,14 @@ pub struct Completer {
     /// the scene is seen behind it, the object would have been seen. Uses the condition's
     /// scene-depth channel (index 5).
     pub free_space: bool,
+    /// Samples averaged per completion (each `steps` steps from its own noise; every second one
+    /// on the mirrored crop, mirrored back): the mask channel's average is a less noisy score
+    /// than one sample's. 1 = a single sample.
+    pub samples: usize,
+    /// Keep every pixel of the geometric prior (condition channel 6) in the amodal mask whatever
+    /// the mask channel says there; the model only adds pixels. On validation pairs the models'
+    /// removals of prior pixels were wrong two times in three (`mask_decisions` example).
+    pub keep_prior: bool,
     pub device: Device,
 }
 
@@ -74,6 +82,8 @@ impl Completer {
             timestep_shift,
             mask_threshold: 0.0,
             free_space: true,
+            samples: 1,
+            keep_prior: false,
             device: device.clone(),
         })
     }
@@ -88,7 +98,59 @@ impl Completer {
         };
         let mut completer = Self::load(&weights, &cfg.model, cfg.timestep_shift, device)?;
         completer.mask_threshold = cfg.mask_threshold;
+        completer.samples = cfg.inference_samples.max(1);
+        completer.keep_prior = cfg.mask_keeps_prior;
         Ok(completer)
+    }
+
+    /// One sample of the whole target (B, R, R, 6), the residual prior added back.
+    fn sample_x0(
+        &self,
+        cond: &Tensor,
+        other_views: &[Vec<Tensor>],
+        rho: f32,
+        steps: usize,
+        seed: u64,
+    ) -> Result<Tensor> {
+        let (b, r, _, _) = cond.dims4()?;
+        let own = self.model.encode(cond)?;
+        let tokens = if other_views.iter().any(|v| !v.is_empty()) && rho > 0.0 {
+            let mut means = Vec::with_capacity(b);
+            let mut rhos = Vec::with_capacity(b);
+            for k in 0..b {
+                let views = other_views.get(k).filter(|v| !v.is_empty());
+                match views {
+                    Some(v) => {
+                        let t = self.model.encode(&Tensor::cat(v, 0)?)?; // (V, M, D)
+                        means.push(t.mean_keepdim(0)?);
+                        rhos.push(rho);
+                    }
+                    None => {
+                        means.push(own.narrow(0, k, 1)?);
+                        rhos.push(0.0);
+                    }
+                }
+            }
+            mix_views(
+                &own,
+                &Tensor::cat(&means, 0)?,
+                &Tensor::from_vec(rhos, b, &self.device)?,
+            )?
+        } else {
+            own
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let noise = randn((b, r, r, TARGET_CHANNELS), &mut rng, &self.device)?;
+        let x0 = euler_sample(&noise, steps, self.timestep_shift, |x, t| {
+            let tt = Tensor::full(t, b, &self.device)?;
+            self.model.forward(x, &tt, cond, &tokens)
+        })?;
+        let x0 = if self.model.config.residual {
+            (x0 + crate::data::residual_prior(cond, self.model.config.mask_prior)?)?
+        } else {
+            x0
+        };
+        Ok(x0)
     }
 
     pub fn resolution(&self) -> usize {
@@ -128,42 +190,38 @@ impl Completer {
                 r0 = self.resolution()
             )));
         }
-        let own = self.model.encode(cond)?;
-        let tokens = if other_views.iter().any(|v| !v.is_empty()) && rho > 0.0 {
-            let mut means = Vec::with_capacity(b);
-            let mut rhos = Vec::with_capacity(b);
-            for k in 0..b {
-                let views = other_views.get(k).filter(|v| !v.is_empty());
-                match views {
-                    Some(v) => {
-                        let t = self.model.encode(&Tensor::cat(v, 0)?)?; // (V, M, D)
-                        means.push(t.mean_keepdim(0)?);
-                        rhos.push(rho);
-                    }
-                    None => {
-                        means.push(own.narrow(0, k, 1)?);
-                        rhos.push(0.0);
-                    }
-                }
-            }
-            mix_views(
-                &own,
-                &Tensor::cat(&means, 0)?,
-                &Tensor::from_vec(rhos, b, &self.device)?,
-            )?
-        } else {
-            own
-        };
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let noise = randn((b, r, r, TARGET_CHANNELS), &mut rng, &self.device)?;
-        let x0 = euler_sample(&noise, steps, self.timestep_shift, |x, t| {
-            let tt = Tensor::full(t, b, &self.device)?;
-            self.model.forward(x, &tt, cond, &tokens)
-        })?;
-        let x0 = if self.model.config.residual {
-            (x0 + crate::data::residual_prior(cond, self.model.config.mask_prior)?)?
-        } else {
-            x0
+        let samples = self.samples.max(1);
+        let mut sum: Option<Tensor> = None;
+        for i in 0..samples {
+            let seed_i = seed.wrapping_add(i as u64);
+            let x0 = if i % 2 == 1 {
+                let flipped_others = other_views
+                    .iter()
+                    .map(|v| {
+                        v.iter()
+                            .map(flip_width)
+                            .collect::<candle_core::Result<Vec<_>>>()
+                    })
+                    .collect::<candle_core::Result<Vec<_>>>()?;
+                flip_width(&self.sample_x0(
+                    &flip_width(cond)?,
+                    &flipped_others,
+                    rho,
+                    steps,
+                    seed_i,
+                )?)?
+            } else {
+                self.sample_x0(cond, other_views, rho, steps, seed_i)?
+            };
+            sum = Some(match sum {
+                None => x0,
+                Some(acc) => (acc + x0)?,
+            });
+        }
+        let x0 = match sum {
+            Some(acc) if samples > 1 => (acc / samples as f64)?,
+            Some(acc) => acc,
+            None => unreachable!("at least one sample is drawn"),
         };
         let data = x0.flatten_all()?.to_vec1::<f32>()?;
         let cond_data = cond.flatten_all()?.to_vec1::<f32>()?;
@@ -197,7 +255,9 @@ impl Completer {
                     amodal: mask_score
                         .iter()
                         .zip(cx.chunks_exact(COND_CHANNELS))
-                        .map(|(&m, c)| m > self.mask_threshold || c[3] > 0.0)
+                        .map(|(&m, c)| {
+                            m > self.mask_threshold || c[3] > 0.0 || (self.keep_prior && c[6] > 0.0)
+                        })
                         .collect(),
                     mask_score,
                     depth_rel: px
@@ -212,4 +272,11 @@ impl Completer {
             })
             .collect())
     }
+}
+
+/// Mirrors images (B, H, W, C) left to right.
+fn flip_width(x: &Tensor) -> candle_core::Result<Tensor> {
+    let w = x.dim(2)?;
+    let reversed: Vec<u32> = (0..w as u32).rev().collect();
+    x.index_select(&Tensor::from_vec(reversed, w, x.device())?, 2)
 }

@@ -71,6 +71,12 @@ pub struct TrainConfig {
     /// middle). Chosen on validation pairs after training (`deocc eval amodal --split val
     /// --mask-thresholds ...`) and shipped with the weights in train.json.
     pub mask_threshold: f32,
+    /// Inference, not training: samples averaged per completion ([`crate::infer::Completer`]'s
+    /// `samples`), chosen on validation pairs like the threshold and shipped with it.
+    pub inference_samples: usize,
+    /// Inference, not training: keep the geometric prior's pixels in the amodal mask
+    /// ([`crate::infer::Completer`]'s `keep_prior`), chosen on validation pairs.
+    pub mask_keeps_prior: bool,
 }
 
 impl Default for TrainConfig {
@@ -90,6 +96,8 @@ impl Default for TrainConfig {
             checkpoint_every: 200,
             channel_loss_weights: Vec::new(),
             mask_threshold: 0.0,
+            inference_samples: 1,
+            mask_keeps_prior: false,
         }
     }
 }

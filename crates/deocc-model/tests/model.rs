@@ -639,6 +639,59 @@ fn free_space_constraint_keeps_hidden_pixels_only_where_the_scene_is_in_front() 
     );
 }
 
+#[test]
+fn completer_keeps_the_prior_when_asked_and_averages_more_samples() {
+    use deocc_model::data::COND_CHANNELS;
+    let dir = tempfile::tempdir().unwrap();
+    let data = tiny_pairs();
+    let cfg = TrainConfig {
+        model: GlDotConfig::tiny(),
+        batch_size: 2,
+        steps: 1,
+        ..TrainConfig::default()
+    };
+    let mut trainer = Trainer::open(dir.path(), cfg, &Device::Cpu).unwrap();
+    trainer.step(&data).unwrap();
+    trainer.checkpoint(dir.path()).unwrap();
+    let mut completer = Completer::from_dir(dir.path(), &Device::Cpu).unwrap();
+    // A threshold no score passes: the mask is the visible mask, plus the prior when kept.
+    completer.mask_threshold = f32::MAX;
+    let idx: Vec<usize> = (0..data.len().min(3)).collect();
+    let (_, cond) = data
+        .batch(&idx, &vec![false; idx.len()], &Device::Cpu)
+        .unwrap();
+    let plain = completer.complete(&cond, &[], 0.0, 2, 5).unwrap();
+    completer.keep_prior = true;
+    let kept = completer.complete(&cond, &[], 0.0, 2, 5).unwrap();
+    let c = cond.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let n = data.set.pixels();
+    let mut prior_only = 0;
+    for k in 0..idx.len() {
+        for p in 0..n {
+            let px = &c[(k * n + p) * COND_CHANNELS..(k * n + p + 1) * COND_CHANNELS];
+            let (visible, prior) = (px[3] > 0.0, px[6] > 0.0);
+            assert_eq!(plain[k].amodal[p], visible, "pair {k} pixel {p}");
+            assert_eq!(kept[k].amodal[p], visible || prior, "pair {k} pixel {p}");
+            prior_only += (prior && !visible) as usize;
+        }
+    }
+    assert!(prior_only > 0, "the test pairs have hidden prior pixels");
+    // Two samples (the second on the mirrored crop) average into other scores.
+    completer.samples = 2;
+    let two = completer.complete(&cond, &[], 0.0, 2, 5).unwrap();
+    assert_eq!(two.len(), idx.len());
+    completer.samples = 1;
+    let again = completer.complete(&cond, &[], 0.0, 2, 5).unwrap();
+    for (a, b) in plain.iter().zip(&again) {
+        assert_eq!(a.mask_score, b.mask_score, "one sample is deterministic");
+    }
+    let differs = two
+        .iter()
+        .zip(&plain)
+        .any(|(a, b)| a.mask_score.iter().zip(&b.mask_score).any(|(x, y)| x != y));
+    assert!(differs, "averaging a second sample changes the scores");
+}
+
 /// A disk of radius 10 in a 32x32 crop whose right part is hidden by an occluder in front; the
 /// rest of the crop is background behind the object.
 fn occluded_disk() -> (Vec<bool>, Vec<bool>, Vec<f32>) {
@@ -690,6 +743,49 @@ fn ellipse_prior_continues_a_disk_behind_its_occluder() {
 }
 
 #[test]
+fn ellipse_or_box_prior_fills_the_hidden_corner_of_a_rectangle() {
+    use deocc_geometry::mask2d::iou;
+    use deocc_model::data::{ellipse_or_box_prior, ellipse_prior, hull_prior};
+    let r = 32;
+    let rect: Vec<bool> = (0..r * r)
+        .map(|p| (6..26).contains(&(p % r)) && (8..24).contains(&(p / r)))
+        .collect();
+    // An occluder in front of the lower right corner.
+    let occluder = |p: usize| p % r >= 18 && p / r >= 16;
+    let visible: Vec<bool> = (0..r * r).map(|p| rect[p] && !occluder(p)).collect();
+    let scene: Vec<f32> = (0..r * r)
+        .map(|p| match (occluder(p), rect[p]) {
+            (true, _) => -0.5,
+            (false, true) => 0.0,
+            (false, false) => 0.6,
+        })
+        .collect();
+    let hull = hull_prior(&visible, &scene, r);
+    let ellipse = ellipse_prior(&visible, &scene, r);
+    let with_box = ellipse_or_box_prior(&visible, &scene, r);
+    let (h, e, b) = (
+        iou(&hull, &rect),
+        iou(&ellipse, &rect),
+        iou(&with_box, &rect),
+    );
+    // The seen outline spans the whole rectangle, so its box is the rectangle.
+    assert!(b > 0.99, "ellipse-or-box prior IoU {b}");
+    assert!(b > h + 0.05 && b > e, "{b} vs hull {h}, ellipse {e}");
+    for p in 0..r * r {
+        assert!(
+            !ellipse[p] || with_box[p],
+            "keeps the ellipse prior (pixel {p})"
+        );
+        assert!(!with_box[p] || visible[p] || scene[p] < 0.0, "pixel {p}");
+    }
+    let speck: Vec<bool> = (0..r * r).map(|p| p == 5 * r + 5).collect();
+    assert_eq!(
+        ellipse_or_box_prior(&speck, &scene, r),
+        hull_prior(&speck, &scene, r)
+    );
+}
+
+#[test]
 fn pair_data_carries_the_prior_of_the_model_in_channel_6() {
     use deocc_model::data::COND_CHANNELS;
     let channel6 = |data: &PairData| -> Vec<bool> {
@@ -702,6 +798,16 @@ fn pair_data_carries_the_prior_of_the_model_in_channel_6() {
     let data = data.with_mask_prior(MaskPrior::EllipseInFront);
     assert_eq!(channel6(&data), data.ellipse_prior(0));
     assert_eq!(data.condition_prior(0), data.ellipse_prior(0));
+    let data = data.with_mask_prior(MaskPrior::EllipseOrBoxInFront);
+    let visible: Vec<bool> = data.visible_mask(0).iter().map(|&m| m > 0).collect();
+    let n = visible.len();
+    let expected = deocc_model::data::ellipse_or_box_prior(
+        &visible,
+        &data.set.scene_depth[..n],
+        data.resolution(),
+    );
+    assert_eq!(channel6(&data), expected);
+    assert_eq!(data.condition_prior(0), expected);
 }
 
 #[test]
