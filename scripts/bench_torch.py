@@ -191,7 +191,7 @@ def main():
         loss.backward()
         opt.step()
 
-    out["train_step_batch_8_s"] = median_time(train_step, 5)
+    out["train_step_batch_8_s"] = median_time(train_step, 9)
 
     @torch.no_grad()
     def forward(b=1):

@@ -88,7 +88,7 @@ fn model_bench(a: ModelArgs) -> Result<()> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     let (r, tc, cc) = (cfg.resolution, cfg.target_channels, cfg.cond_channels);
     let mut step = 0;
-    let (train_s, _) = warm_median_time(5, || {
+    let (train_s, _) = warm_median_time(9, || {
         let b = 8;
         let x0 = randn((b, r, r, tc), &mut rng, &dev)?;
         let cond = randn((b, r, r, cc), &mut rng, &dev)?;
