@@ -17,10 +17,15 @@ use deocc_model::infer::Completer;
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let [weights, split, pairs] = args.as_slice() else {
-        bail!("usage: mask_decisions WEIGHTS_DIR SPLIT PAIRS  (pairs from data/pairs)");
+    let (weights, split, pairs, steps) = match args.as_slice() {
+        [w, s, p] => (w, s, p, "4"),
+        [w, s, p, n] => (w, s, p, n.as_str()),
+        _ => {
+            bail!("usage: mask_decisions WEIGHTS_DIR SPLIT PAIRS [STEPS]  (pairs from data/pairs)")
+        }
     };
     let pairs: usize = pairs.parse().context("PAIRS must be a number")?;
+    let steps: usize = steps.parse().context("STEPS must be a number")?;
     let device = Device::Cpu;
     let completer = Completer::from_dir(&PathBuf::from(weights), &device)?;
     let files = shards(std::path::Path::new("data/pairs"), split)?;
@@ -50,7 +55,7 @@ fn main() -> Result<()> {
     let mut iou_sum = [[0f64; KEEP.len()]; ADD.len()];
     for chunk in idx.chunks(16) {
         let (_, cond) = data.batch(chunk, &vec![false; chunk.len()], &device)?;
-        let out = completer.complete(&cond, &[], 0.0, 4, 0)?;
+        let out = completer.complete(&cond, &[], 0.0, steps, 0)?;
         for (&i, comp) in chunk.iter().zip(&out) {
             let truth = data.amodal_mask(i);
             let visible = data.visible_mask(i);
@@ -97,7 +102,7 @@ fn main() -> Result<()> {
         }
     }
     let per = |x: usize| x as f64 / n as f64;
-    println!("{n} {split} pairs, model {weights}, 4 steps, per pair:");
+    println!("{n} {split} pairs, model {weights}, {steps} steps, per pair:");
     println!(
         "  prior: misses {:.1} object pixels, {:.1} false pixels",
         per(c.prior_missed),

@@ -217,11 +217,11 @@ pub fn evaluate_amodal(
         .iter()
         .map(|&th| {
             let m = mean((0..n).map(|k| {
-                let pred: Vec<bool> = main_comp[k]
-                    .mask_score
-                    .iter()
-                    .zip(&visible[k])
-                    .map(|(&s, &v)| s > th || v)
+                let pred: Vec<bool> = (0..r * r)
+                    .map(|p| {
+                        let score = main_comp[k].mask_score[p];
+                        c.in_mask(score, visible[k][p], model_prior[k][p], th)
+                    })
                     .collect();
                 iou(&pred, &truth[k])
             }));

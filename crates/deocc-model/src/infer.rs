@@ -153,6 +153,13 @@ impl Completer {
         Ok(x0)
     }
 
+    /// The completer's mask rule for one pixel at a given threshold: visible pixels are in, prior
+    /// pixels (condition channel 6) too when the prior is kept, and others when their mask score
+    /// is above the threshold.
+    pub fn in_mask(&self, score: f32, visible: bool, prior: bool, threshold: f32) -> bool {
+        visible || (self.keep_prior && prior) || score > threshold
+    }
+
     pub fn resolution(&self) -> usize {
         self.model.config.resolution
     }
@@ -255,9 +262,7 @@ impl Completer {
                     amodal: mask_score
                         .iter()
                         .zip(cx.chunks_exact(COND_CHANNELS))
-                        .map(|(&m, c)| {
-                            m > self.mask_threshold || c[3] > 0.0 || (self.keep_prior && c[6] > 0.0)
-                        })
+                        .map(|(&m, c)| self.in_mask(m, c[3] > 0.0, c[6] > 0.0, self.mask_threshold))
                         .collect(),
                     mask_score,
                     depth_rel: px
