@@ -209,7 +209,7 @@ def main():
             v = m(x, torch.full((b,), float(grid[i])), cond, toks)
             x = x + (grid[i + 1] - grid[i]) * v
 
-    out["forward_batch_1_s"] = median_time(lambda: forward(1), 10)
+    out["forward_batch_1_s"] = median_time(lambda: forward(1), 30)
     out["complete_4_steps_batch_1_s"] = median_time(lambda: complete(1), 5)
     out["complete_4_steps_batch_8_s"] = median_time(lambda: complete(8), 3)
     json.dump(out, open(sys.argv[2], "w"), indent=2)

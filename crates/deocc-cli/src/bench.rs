@@ -139,7 +139,7 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         GlDot::new(&cfg, VarBuilder::from_tensors(tensors, DType::F32, &dev))?
     };
     let model = frozen;
-    let (fwd_s, _) = warm_median_time(10, || forward(&model, &cfg, 1, &mut rng))?;
+    let (fwd_s, _) = warm_median_time(30, || forward(&model, &cfg, 1, &mut rng))?;
     let mut complete = |b: usize| -> Result<f64> {
         Ok(warm_median_time(5, || {
             let cond = randn((b, r, r, cc), &mut rng, &dev)?;

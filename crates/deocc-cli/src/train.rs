@@ -22,8 +22,9 @@ pub struct TrainArgs {
     #[arg(long, default_value = "small")]
     preset: String,
     /// The mask the residual starts from and condition channel 6 carries: visible,
-    /// hull_in_front or ellipse_in_front. Default: the preset's (ellipse_in_front). Runs started
-    /// before the ellipse prior need hull_in_front to resume.
+    /// hull_in_front, ellipse_in_front or ellipse_or_box_in_front. Default: the preset's
+    /// (ellipse_or_box_in_front). A run resumes only with the prior it started with (hull_in_front
+    /// or ellipse_in_front for runs made before the current preset).
     #[arg(long)]
     mask_prior: Option<String>,
     /// Total optimisation steps (a resumed run continues up to this).
