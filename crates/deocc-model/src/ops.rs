@@ -9,6 +9,9 @@
 //! - [`linear_attention`]: SANA's ReLU linear attention, O(N d^2).
 //! - [`layer_norm_modulate`]: adaLN's `LayerNorm(x) * (1 + scale) + shift` as one custom op with a
 //!   hand-written backward.
+//! - [`linear`]: a linear layer as row blocks of single-threaded gemm on candle's pool (forward
+//!   and both gradient products), never on gemm's rayon threads.
+//! - [`silu`], [`gelu`]: single-pass activations with a hand-written backward on [`fast_exp`].
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor, D};
 
