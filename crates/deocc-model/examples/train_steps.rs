@@ -1,6 +1,7 @@
 //! Runs training steps of the shipped configuration on random data, for profiling:
 //! `cargo build --release -p deocc-model --example train_steps &&
-//!  perf record -g target/release/examples/train_steps 20`.
+//!  perf record -g target/release/examples/train_steps 20`
+//! (`train_steps N forward`: N batch-1 forwards with plain weights, as inference runs them).
 //! Prints the median step time; `deocc bench model` is the benchmark of record.
 
 use std::collections::BTreeMap;
@@ -38,6 +39,9 @@ fn main() -> candle_core::Result<()> {
         .lock()
         .map(|d| d.iter().map(|(k, v)| (k.clone(), v.clone())).collect())
         .unwrap_or_default();
+    if std::env::args().nth(2).as_deref() == Some("forward") {
+        return forwards(&cfg, &vars, steps);
+    }
     let mut opt = AdamW::new(&vars)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     let (r, tc, cc, b) = (cfg.resolution, cfg.target_channels, cfg.cond_channels, 8);
@@ -88,5 +92,29 @@ fn main() -> candle_core::Result<()> {
         median(1),
         median(2)
     );
+    Ok(())
+}
+
+/// `n` batch-1 forwards (condition encoding included) on plain tensors, as `Completer` runs them.
+fn forwards(cfg: &GlDotConfig, vars: &BTreeMap<String, Var>, n: usize) -> candle_core::Result<()> {
+    let dev = Device::Cpu;
+    let tensors: std::collections::HashMap<String, Tensor> = vars
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_tensor().detach()))
+        .collect();
+    let model = GlDot::new(cfg, VarBuilder::from_tensors(tensors, DType::F32, &dev))?;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let r = cfg.resolution;
+    let mut times = Vec::with_capacity(n);
+    for _ in 0..n {
+        let start = Instant::now();
+        let cond = randn((1, r, r, cfg.cond_channels), &mut rng, &dev)?;
+        let toks = model.encode(&cond)?;
+        let x = randn((1, r, r, cfg.target_channels), &mut rng, &dev)?;
+        model.forward(&x, &Tensor::full(0.5f32, 1, &dev)?, &cond, &toks)?;
+        times.push(start.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    println!("median forward {:.2} ms over {n}", 1e3 * times[n / 2]);
     Ok(())
 }
