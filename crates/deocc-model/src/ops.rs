@@ -630,7 +630,7 @@ fn pool_gemm(
         "pool_gemm: rhs bounds"
     );
     // Blocks of whole rows, a multiple of gemm's 6-row micro-tile where possible.
-    let threads = candle_core::utils::get_num_threads().max(1);
+    let threads = crate::pool::threads();
     let block_rows = if m * n * k < 1 << 18 {
         m
     } else {
@@ -902,7 +902,7 @@ fn cross_probabilities(q: &[f32], kv: &[f32], n: usize, m: usize, d: usize, hd: 
         let max = row.iter().fold(f32::NEG_INFINITY, |a, &v| a.max(v)) * scale;
         let mut sum = 0f32;
         for v in row.iter_mut() {
-            *v = (*v * scale - max).exp();
+            *v = fast_exp(*v * scale - max);
             sum += *v;
         }
         let inv = 1.0 / sum;

@@ -22,6 +22,12 @@ impl<T> SharedMut<T> {
     }
 }
 
+/// Threads of candle's pool: its workers and the calling thread. (candle's `get_num_threads`
+/// parses /proc/cpuinfo on every call, a tenth of a batch-1 forward when called per product.)
+pub fn threads() -> usize {
+    barrier_pool().n_workers() + 1
+}
+
 /// `f(i, chunk_i)` for every `chunk`-sized piece of `data` (the last may be shorter), in parallel.
 pub fn for_each_chunk_mut<T: Send>(
     data: &mut [T],
