@@ -156,8 +156,9 @@ class GlDot(nn.Module):
         return unpatchify(s.final(modulate(ln(x), sh, sc)), cfg["patch"], cfg["target_channels"])
 
 
-def median_time(fn, reps):
-    fn()
+def median_time(fn, reps, warm_ups=1):
+    for _ in range(warm_ups):
+        fn()
     ts = []
     for _ in range(reps):
         t0 = time.perf_counter()
@@ -191,7 +192,7 @@ def main():
         loss.backward()
         opt.step()
 
-    out["train_step_batch_8_s"] = median_time(train_step, 9)
+    out["train_step_batch_8_s"] = median_time(train_step, 9, warm_ups=3)
 
     @torch.no_grad()
     def forward(b=1):
