@@ -65,7 +65,7 @@ fn model_bench(a: ModelArgs) -> Result<()> {
     use deocc_model::config::{AttentionKind, GlDotConfig};
     use deocc_model::flow::euler_sample;
     use deocc_model::init::{randn, SeededInit};
-    use deocc_model::model::{mix_views, GlDot};
+    use deocc_model::model::GlDot;
     use deocc_model::train::AdamW;
     let dev = Device::Cpu;
     let build = |cfg: &GlDotConfig| -> Result<(GlDot, VarMap)> {
@@ -92,21 +92,7 @@ fn model_bench(a: ModelArgs) -> Result<()> {
     // page faults showed in perf timelines for about five steps), and training is thousands of
     // steps in the steady state.
     let (train_s, _) = warm_median_time_after(3, 9, || {
-        let b = 8;
-        let x0 = randn((b, r, r, tc), &mut rng, &dev)?;
-        let cond = randn((b, r, r, cc), &mut rng, &dev)?;
-        let toks = model.encode(&Tensor::cat(&[&cond, &cond], 0)?)?;
-        let c = mix_views(
-            &toks.narrow(0, 0, b)?,
-            &toks.narrow(0, b, b)?,
-            &Tensor::full(0.5f32, b, &dev)?,
-        )?;
-        let t = Tensor::full(0.5f32, b, &dev)?;
-        let eps = randn((b, r, r, tc), &mut rng, &dev)?;
-        let xt = deocc_model::flow::interpolate(&x0, &eps, &t)?;
-        let loss = (model.forward(&xt, &t, &cond, &c)? - (eps - x0)?)?
-            .sqr()?
-            .mean_all()?;
+        let loss = deocc_model::train::random_batch_loss(&model, 8, &mut rng, &dev)?;
         let grads = loss.backward()?;
         let g: std::collections::BTreeMap<String, Tensor> = vars
             .iter()

@@ -11,8 +11,8 @@ use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
 use deocc_model::config::GlDotConfig;
 use deocc_model::init::{randn, SeededInit};
-use deocc_model::model::{mix_views, GlDot};
-use deocc_model::train::AdamW;
+use deocc_model::model::GlDot;
+use deocc_model::train::{random_batch_loss, AdamW};
 use rand::SeedableRng;
 
 // As in the `deocc` binary; run with MIMALLOC_PURGE_DELAY=-1 MIMALLOC_ALLOW_LARGE_OS_PAGES=0 to
@@ -44,25 +44,11 @@ fn main() -> candle_core::Result<()> {
     }
     let mut opt = AdamW::new(&vars)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
-    let (r, tc, cc, b) = (cfg.resolution, cfg.target_channels, cfg.cond_channels, 8);
     let mut times = Vec::with_capacity(steps);
     let mut phases = Vec::with_capacity(steps);
     for step in 1..=steps {
         let start = Instant::now();
-        let x0 = randn((b, r, r, tc), &mut rng, &dev)?;
-        let cond = randn((b, r, r, cc), &mut rng, &dev)?;
-        let toks = model.encode(&Tensor::cat(&[&cond, &cond], 0)?)?;
-        let c = mix_views(
-            &toks.narrow(0, 0, b)?,
-            &toks.narrow(0, b, b)?,
-            &Tensor::full(0.5f32, b, &dev)?,
-        )?;
-        let t = Tensor::full(0.5f32, b, &dev)?;
-        let eps = randn((b, r, r, tc), &mut rng, &dev)?;
-        let xt = deocc_model::flow::interpolate(&x0, &eps, &t)?;
-        let loss = (model.forward(&xt, &t, &cond, &c)? - (eps - x0)?)?
-            .sqr()?
-            .mean_all()?;
+        let loss = random_batch_loss(&model, 8, &mut rng, &dev)?;
         let forward_done = start.elapsed().as_secs_f64();
         let grads = loss.backward()?;
         let backward_done = start.elapsed().as_secs_f64();

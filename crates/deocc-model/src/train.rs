@@ -263,6 +263,29 @@ pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
     serde_json::from_str(&text).map_err(|e| file_err(path, e))
 }
 
+/// The rectified-flow loss of one batch of `b` random samples of the model's shapes (t = 0.5,
+/// condition tokens mixed from two encodings with rho = 0.5): the step `deocc bench model` times
+/// against PyTorch and the `train_steps` profiling example runs, one definition for both.
+pub fn random_batch_loss(
+    model: &GlDot,
+    b: usize,
+    rng: &mut impl Rng,
+    device: &Device,
+) -> candle_core::Result<Tensor> {
+    let cfg = &model.config;
+    let (r, tc, cc) = (cfg.resolution, cfg.target_channels, cfg.cond_channels);
+    let x0 = randn((b, r, r, tc), rng, device)?;
+    let cond = randn((b, r, r, cc), rng, device)?;
+    let toks = model.encode(&Tensor::cat(&[&cond, &cond], 0)?)?;
+    let half = Tensor::full(0.5f32, b, device)?;
+    let c = mix_views(&toks.narrow(0, 0, b)?, &toks.narrow(0, b, b)?, &half)?;
+    let eps = randn((b, r, r, tc), rng, device)?;
+    let xt = interpolate(&x0, &eps, &half)?;
+    (model.forward(&xt, &half, &cond, &c)? - velocity_target(&x0, &eps)?)?
+        .sqr()?
+        .mean_all()
+}
+
 /// A training run in memory.
 pub struct Trainer {
     pub config: TrainConfig,

@@ -587,12 +587,10 @@ fn the_residual_starts_from_the_configured_mask_prior() {
     assert!(too_few.validate().unwrap_err().contains("channel 6"));
 }
 
-#[test]
-fn free_space_constraint_keeps_hidden_pixels_only_where_the_scene_is_in_front() {
-    use deocc_model::data::{COND_CHANNELS, DEPTH_SCALE};
-    use deocc_model::infer::FREE_SPACE_MARGIN;
+/// A tiny model trained one step on `data`, loaded back as a completer (the run directory is
+/// returned to keep it alive).
+fn completer_after_one_step(data: &PairData) -> (tempfile::TempDir, Completer) {
     let dir = tempfile::tempdir().unwrap();
-    let data = tiny_pairs();
     let cfg = TrainConfig {
         model: GlDotConfig::tiny(),
         batch_size: 2,
@@ -600,9 +598,18 @@ fn free_space_constraint_keeps_hidden_pixels_only_where_the_scene_is_in_front() 
         ..TrainConfig::default()
     };
     let mut trainer = Trainer::open(dir.path(), cfg, &Device::Cpu).unwrap();
-    trainer.step(&data).unwrap();
+    trainer.step(data).unwrap();
     trainer.checkpoint(dir.path()).unwrap();
-    let mut completer = Completer::from_dir(dir.path(), &Device::Cpu).unwrap();
+    let completer = Completer::from_dir(dir.path(), &Device::Cpu).unwrap();
+    (dir, completer)
+}
+
+#[test]
+fn free_space_constraint_keeps_hidden_pixels_only_where_the_scene_is_in_front() {
+    use deocc_model::data::{COND_CHANNELS, DEPTH_SCALE};
+    use deocc_model::infer::FREE_SPACE_MARGIN;
+    let data = tiny_pairs();
+    let (_dir, mut completer) = completer_after_one_step(&data);
     // A threshold every score passes, so that only the constraint decides.
     completer.mask_threshold = f32::MIN;
     let idx: Vec<usize> = (0..data.len().min(4)).collect();
@@ -642,18 +649,8 @@ fn free_space_constraint_keeps_hidden_pixels_only_where_the_scene_is_in_front() 
 #[test]
 fn completer_keeps_the_prior_when_asked_and_averages_more_samples() {
     use deocc_model::data::COND_CHANNELS;
-    let dir = tempfile::tempdir().unwrap();
     let data = tiny_pairs();
-    let cfg = TrainConfig {
-        model: GlDotConfig::tiny(),
-        batch_size: 2,
-        steps: 1,
-        ..TrainConfig::default()
-    };
-    let mut trainer = Trainer::open(dir.path(), cfg, &Device::Cpu).unwrap();
-    trainer.step(&data).unwrap();
-    trainer.checkpoint(dir.path()).unwrap();
-    let mut completer = Completer::from_dir(dir.path(), &Device::Cpu).unwrap();
+    let (_dir, mut completer) = completer_after_one_step(&data);
     // A threshold no score passes: the mask is the visible mask, plus the prior when kept.
     completer.mask_threshold = f32::MAX;
     let idx: Vec<usize> = (0..data.len().min(3)).collect();
