@@ -19,6 +19,7 @@ pub mod init;
 pub mod model;
 pub mod ops;
 pub mod pool;
+pub mod simd;
 pub mod train;
 
 pub use config::{GlDotConfig, MaskPrior};

@@ -15,6 +15,8 @@
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor, D};
 
+use crate::simd::simd_dispatch;
+
 /// `y = x * (1 + scale) + shift`, with `shift` and `scale` of shape (B, 1, D) broadcast over tokens.
 pub fn modulate(x: &Tensor, shift: &Tensor, scale: &Tensor) -> Result<Tensor> {
     x.broadcast_mul(&(scale + 1.0)?)?.broadcast_add(shift)
@@ -66,30 +68,49 @@ fn contiguous_f32<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [
 fn dwconv_forward(x: &[f32], w: &[f32], bsz: usize, h: usize, wd: usize, c: usize) -> Vec<f32> {
     let mut y = vec![0f32; bsz * h * wd * c];
     crate::pool::for_each_chunk_mut(&mut y, wd * c, |row_idx, out_row| {
-        let (b, i) = (row_idx / h, row_idx % h);
-        for a in 0..3 {
-            let ii = i as isize + a as isize - 1;
-            if ii < 0 || ii >= h as isize {
-                continue;
-            }
-            let in_row = &x[(b * h + ii as usize) * wd * c..][..wd * c];
-            for e in 0..3 {
-                let wk = &w[(a * 3 + e) * c..][..c];
-                for j in 0..wd {
-                    let jj = j as isize + e as isize - 1;
-                    if jj < 0 || jj >= wd as isize {
-                        continue;
-                    }
-                    let src = &in_row[jj as usize * c..][..c];
-                    let dst = &mut out_row[j * c..][..c];
-                    for ((d, s), k) in dst.iter_mut().zip(src).zip(wk) {
-                        *d += s * k;
-                    }
+        dwconv_row(x, w, out_row, row_idx, h, wd, c)
+    });
+    y
+}
+
+simd_dispatch! {
+    /// One output row (image `row_idx / h`, row `row_idx % h`) of [`dwconv_forward`].
+    fn dwconv_row(x: &[f32], w: &[f32], out_row: &mut [f32], row_idx: usize, h: usize, wd: usize, c: usize)
+        = dwconv_row_kernel;
+}
+
+#[inline(always)]
+fn dwconv_row_kernel(
+    x: &[f32],
+    w: &[f32],
+    out_row: &mut [f32],
+    row_idx: usize,
+    h: usize,
+    wd: usize,
+    c: usize,
+) {
+    let (b, i) = (row_idx / h, row_idx % h);
+    for a in 0..3 {
+        let ii = i as isize + a as isize - 1;
+        if ii < 0 || ii >= h as isize {
+            continue;
+        }
+        let in_row = &x[(b * h + ii as usize) * wd * c..][..wd * c];
+        for e in 0..3 {
+            let wk = &w[(a * 3 + e) * c..][..c];
+            for j in 0..wd {
+                let jj = j as isize + e as isize - 1;
+                if jj < 0 || jj >= wd as isize {
+                    continue;
+                }
+                let src = &in_row[jj as usize * c..][..c];
+                let dst = &mut out_row[j * c..][..c];
+                for ((d, s), k) in dst.iter_mut().zip(src).zip(wk) {
+                    *d += s * k;
                 }
             }
         }
-    });
-    y
+    }
 }
 
 /// Depthwise 3x3 convolution, channels last: x (B, H, W, C), weight (3, 3, C) -> (B, H, W, C).
@@ -151,6 +172,47 @@ impl CustomOp2 for DepthwiseConv3x3 {
     }
 }
 
+simd_dispatch! {
+    /// One image row's share of the depthwise convolution's weight gradient, into `acc` (3, 3, C).
+    fn dwconv_weight_grad_row(x: &[f32], g: &[f32], acc: &mut [f32], row_idx: usize, h: usize, w: usize, c: usize)
+        = dwconv_weight_grad_row_kernel;
+}
+
+#[inline(always)]
+fn dwconv_weight_grad_row_kernel(
+    x: &[f32],
+    g: &[f32],
+    acc: &mut [f32],
+    row_idx: usize,
+    h: usize,
+    w: usize,
+    c: usize,
+) {
+    let (bi, i) = (row_idx / h, row_idx % h);
+    let g_row = &g[(bi * h + i) * w * c..][..w * c];
+    for a in 0..3 {
+        let ii = i as isize + a as isize - 1;
+        if ii < 0 || ii >= h as isize {
+            continue;
+        }
+        let x_row = &x[(bi * h + ii as usize) * w * c..][..w * c];
+        for e in 0..3 {
+            let dst = &mut acc[(a * 3 + e) * c..][..c];
+            for j in 0..w {
+                let jj = j as isize + e as isize - 1;
+                if jj < 0 || jj >= w as isize {
+                    continue;
+                }
+                let xs = &x_row[jj as usize * c..][..c];
+                let gs = &g_row[j * c..][..c];
+                for ((d, xv), gv) in dst.iter_mut().zip(xs).zip(gs) {
+                    *d += xv * gv;
+                }
+            }
+        }
+    }
+}
+
 /// dL/dw[a, e, c] = sum_{b,i,j} grad[b,i,j,c] * x[b, i+a-1, j+e-1, c].
 struct DepthwiseConv3x3WeightGrad;
 
@@ -173,30 +235,8 @@ impl CustomOp2 for DepthwiseConv3x3WeightGrad {
         let g = contiguous_f32(s2, l2, "output gradient")?;
         // One partial (3, 3, C) sum per image row, reduced at the end: parallel and deterministic.
         let partial: Vec<Vec<f32>> = crate::pool::map(b * h, |row_idx| {
-            let (bi, i) = (row_idx / h, row_idx % h);
             let mut acc = vec![0f32; 9 * c];
-            let g_row = &g[(bi * h + i) * w * c..][..w * c];
-            for a in 0..3 {
-                let ii = i as isize + a as isize - 1;
-                if ii < 0 || ii >= h as isize {
-                    continue;
-                }
-                let x_row = &x[(bi * h + ii as usize) * w * c..][..w * c];
-                for e in 0..3 {
-                    let dst = &mut acc[(a * 3 + e) * c..][..c];
-                    for j in 0..w {
-                        let jj = j as isize + e as isize - 1;
-                        if jj < 0 || jj >= w as isize {
-                            continue;
-                        }
-                        let xs = &x_row[jj as usize * c..][..c];
-                        let gs = &g_row[j * c..][..c];
-                        for ((d, xv), gv) in dst.iter_mut().zip(xs).zip(gs) {
-                            *d += xv * gv;
-                        }
-                    }
-                }
-            }
+            dwconv_weight_grad_row(x, g, &mut acc, row_idx, h, w, c);
             acc
         });
         let mut out = vec![0f32; 9 * c];
@@ -899,18 +939,76 @@ fn cross_probabilities(q: &[f32], kv: &[f32], n: usize, m: usize, d: usize, hd: 
     small_matmul(n, m, hd, &mut p, q, (d, 1), kv, (1, 2 * d));
     let scale = 1.0 / (hd as f32).sqrt();
     for row in p.chunks_exact_mut(m) {
-        let max = row.iter().fold(f32::NEG_INFINITY, |a, &v| a.max(v)) * scale;
-        let mut sum = 0f32;
-        for v in row.iter_mut() {
-            *v = fast_exp(*v * scale - max);
-            sum += *v;
-        }
-        let inv = 1.0 / sum;
-        for v in row.iter_mut() {
-            *v *= inv;
-        }
+        softmax_row(row, scale);
     }
     p
+}
+
+/// Sum over eight independent lanes (vectorisable; the order differs from a serial sum).
+#[inline(always)]
+fn lane_sum(xs: &[f32]) -> f32 {
+    let mut sums = [0f32; 8];
+    let mut chunks = xs.chunks_exact(8);
+    for chunk in &mut chunks {
+        for (lane, &v) in sums.iter_mut().zip(chunk) {
+            *lane += v;
+        }
+    }
+    chunks.remainder().iter().chain(&sums).sum()
+}
+
+simd_dispatch! {
+    /// Dot product over eight independent lanes.
+    fn lane_dot(a: &[f32], b: &[f32]) -> f32 = lane_dot_kernel;
+}
+
+#[inline(always)]
+fn lane_dot_kernel(a: &[f32], b: &[f32]) -> f32 {
+    let mut sums = [0f32; 8];
+    let (mut ca, mut cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        for ((lane, &u), &v) in sums.iter_mut().zip(x).zip(y) {
+            *lane += u * v;
+        }
+    }
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(u, v)| u * v)
+        .sum();
+    tail + sums.iter().sum::<f32>()
+}
+
+simd_dispatch! {
+    /// `row <- softmax(scale * row)` in place (scale > 0). The max and the sum run on eight
+    /// independent lanes and the exponentials in a loop of their own: a single running max or
+    /// sum is a serial chain the compiler may not reorder, which kept these loops scalar.
+    fn softmax_row(row: &mut [f32], scale: f32) = softmax_row_kernel;
+}
+
+#[inline(always)]
+fn softmax_row_kernel(row: &mut [f32], scale: f32) {
+    let mut lanes = [f32::NEG_INFINITY; 8];
+    let mut chunks = row.chunks_exact(8);
+    for chunk in &mut chunks {
+        for (lane, &v) in lanes.iter_mut().zip(chunk) {
+            *lane = lane.max(v);
+        }
+    }
+    let max = chunks
+        .remainder()
+        .iter()
+        .chain(&lanes)
+        .fold(f32::NEG_INFINITY, |a, &v| a.max(v));
+    let shift = max * scale;
+    for v in row.iter_mut() {
+        *v = fast_exp(*v * scale - shift);
+    }
+    let inv = 1.0 / lane_sum(row);
+    for v in row.iter_mut() {
+        *v *= inv;
+    }
 }
 
 impl CustomOp2 for CrossAttention {
@@ -998,7 +1096,7 @@ impl CustomOp3 for CrossAttentionBackward {
             let mut ds = vec![0f32; n * m];
             small_matmul(n, m, hd, &mut ds, do0, (d, 1), &kv0[d..], (1, 2 * d));
             for (dsr, pr) in ds.chunks_exact_mut(m).zip(p.chunks_exact(m)) {
-                let dot: f32 = dsr.iter().zip(pr).map(|(a, b)| a * b).sum();
+                let dot = lane_dot(dsr, pr);
                 for (g, pv) in dsr.iter_mut().zip(pr) {
                     *g = pv * (*g - dot) * scale;
                 }
@@ -1210,6 +1308,7 @@ pub fn fast_exp(x: f32) -> f32 {
     er * f32::from_bits(n_bits.wrapping_add(127) << 23)
 }
 
+#[inline(always)]
 fn sigmoid(z: f32) -> f32 {
     1.0 / (1.0 + fast_exp(-z))
 }
@@ -1266,6 +1365,50 @@ impl Activation {
     }
 }
 
+simd_dispatch! {
+    /// `out = f(src)`.
+    fn activation_values(kind: Activation, src: &[f32], out: &mut [f32]) = activation_values_kernel;
+}
+
+#[inline(always)]
+fn activation_values_kernel(kind: Activation, src: &[f32], out: &mut [f32]) {
+    // One loop per activation, so that each vectorises without a branch inside.
+    match kind {
+        Activation::Silu => {
+            for (o, &v) in out.iter_mut().zip(src) {
+                *o = Activation::Silu.value(v);
+            }
+        }
+        Activation::Gelu => {
+            for (o, &v) in out.iter_mut().zip(src) {
+                *o = Activation::Gelu.value(v);
+            }
+        }
+    }
+}
+
+simd_dispatch! {
+    /// `out = grad * f'(xs)`.
+    fn activation_gradients(kind: Activation, xs: &[f32], grad: &[f32], out: &mut [f32])
+        = activation_gradients_kernel;
+}
+
+#[inline(always)]
+fn activation_gradients_kernel(kind: Activation, xs: &[f32], grad: &[f32], out: &mut [f32]) {
+    match kind {
+        Activation::Silu => {
+            for ((o, &v), &gv) in out.iter_mut().zip(xs).zip(grad) {
+                *o = gv * Activation::Silu.derivative(v);
+            }
+        }
+        Activation::Gelu => {
+            for ((o, &v), &gv) in out.iter_mut().zip(xs).zip(grad) {
+                *o = gv * Activation::Gelu.derivative(v);
+            }
+        }
+    }
+}
+
 /// Elements per parallel chunk of the activation loops.
 const ACTIVATION_CHUNK: usize = 16 * 1024;
 
@@ -1281,20 +1424,7 @@ impl candle_core::CustomOp1 for Activation {
         let x = contiguous_f32(s, l, "activation input")?;
         let mut y = vec![0f32; x.len()];
         crate::pool::for_each_chunk_mut(&mut y, ACTIVATION_CHUNK, |k, out| {
-            let src = &x[k * ACTIVATION_CHUNK..][..out.len()];
-            // One loop per activation, so that each vectorises without a branch inside.
-            match self {
-                Self::Silu => {
-                    for (o, &v) in out.iter_mut().zip(src) {
-                        *o = Self::Silu.value(v);
-                    }
-                }
-                Self::Gelu => {
-                    for (o, &v) in out.iter_mut().zip(src) {
-                        *o = Self::Gelu.value(v);
-                    }
-                }
-            }
+            activation_values(*self, &x[k * ACTIVATION_CHUNK..][..out.len()], out)
         });
         Ok((CpuStorage::F32(y), l.shape().clone()))
     }
@@ -1334,19 +1464,7 @@ impl CustomOp2 for ActivationBackward {
         let mut dx = vec![0f32; x.len()];
         crate::pool::for_each_chunk_mut(&mut dx, ACTIVATION_CHUNK, |k, out| {
             let xs = &x[k * ACTIVATION_CHUNK..][..out.len()];
-            let gs = &g[k * ACTIVATION_CHUNK..][..out.len()];
-            match self.0 {
-                Activation::Silu => {
-                    for ((o, &v), &gv) in out.iter_mut().zip(xs).zip(gs) {
-                        *o = gv * Activation::Silu.derivative(v);
-                    }
-                }
-                Activation::Gelu => {
-                    for ((o, &v), &gv) in out.iter_mut().zip(xs).zip(gs) {
-                        *o = gv * Activation::Gelu.derivative(v);
-                    }
-                }
-            }
+            activation_gradients(self.0, xs, &g[k * ACTIVATION_CHUNK..][..out.len()], out)
         });
         Ok((CpuStorage::F32(dx), l1.shape().clone()))
     }
@@ -1376,13 +1494,7 @@ impl candle_core::CustomOp1 for SiluGate {
         let mut out = vec![0f32; y.len() / 2];
         if h > 0 {
             crate::pool::for_each_chunk_mut(&mut out, 64 * h, |k, o| {
-                let src = &y[k * 128 * h..][..o.len() * 2];
-                for (orow, row) in o.chunks_exact_mut(h).zip(src.chunks_exact(two_h)) {
-                    let (v, gate) = row.split_at(h);
-                    for ((ov, vv), gv) in orow.iter_mut().zip(v).zip(gate) {
-                        *ov = vv * gv * sigmoid(*gv);
-                    }
-                }
+                silu_gate_rows(&y[k * 128 * h..][..o.len() * 2], o, h)
             });
         }
         let mut dims = l.dims().to_vec();
@@ -1397,6 +1509,44 @@ impl candle_core::CustomOp1 for SiluGate {
             &grad.contiguous()?,
             &SiluGateBackward,
         )?))
+    }
+}
+
+simd_dispatch! {
+    /// Rows of `[v | gate]` (width 2h) -> rows of `v * silu(gate)` (width h).
+    fn silu_gate_rows(src: &[f32], out: &mut [f32], h: usize) = silu_gate_rows_kernel;
+}
+
+#[inline(always)]
+fn silu_gate_rows_kernel(src: &[f32], out: &mut [f32], h: usize) {
+    for (orow, row) in out.chunks_exact_mut(h).zip(src.chunks_exact(2 * h)) {
+        let (v, gate) = row.split_at(h);
+        for ((ov, vv), gv) in orow.iter_mut().zip(v).zip(gate) {
+            *ov = vv * gv * sigmoid(*gv);
+        }
+    }
+}
+
+simd_dispatch! {
+    /// The gradient rows `[dv | dgate]` of [`silu_gate_rows`] from the output gradient's rows.
+    fn silu_gate_gradient_rows(src: &[f32], grad: &[f32], out: &mut [f32], h: usize)
+        = silu_gate_gradient_rows_kernel;
+}
+
+#[inline(always)]
+fn silu_gate_gradient_rows_kernel(src: &[f32], grad: &[f32], out: &mut [f32], h: usize) {
+    for ((drow, row), grow) in out
+        .chunks_exact_mut(2 * h)
+        .zip(src.chunks_exact(2 * h))
+        .zip(grad.chunks_exact(h))
+    {
+        let (dv, dgate) = drow.split_at_mut(h);
+        let (v, gate) = row.split_at(h);
+        for j in 0..h {
+            let s = sigmoid(gate[j]);
+            dv[j] = grow[j] * gate[j] * s;
+            dgate[j] = grow[j] * v[j] * s * (1.0 + gate[j] * (1.0 - s));
+        }
     }
 }
 
@@ -1430,20 +1580,7 @@ impl CustomOp2 for SiluGateBackward {
         if h > 0 {
             crate::pool::for_each_chunk_mut(&mut dy, 64 * two_h, |k, d| {
                 let src = &y[k * 64 * two_h..][..d.len()];
-                let gs = &g[k * 64 * h..][..d.len() / 2];
-                for ((drow, row), grow) in d
-                    .chunks_exact_mut(two_h)
-                    .zip(src.chunks_exact(two_h))
-                    .zip(gs.chunks_exact(h))
-                {
-                    let (dv, dgate) = drow.split_at_mut(h);
-                    let (v, gate) = row.split_at(h);
-                    for j in 0..h {
-                        let s = sigmoid(gate[j]);
-                        dv[j] = grow[j] * gate[j] * s;
-                        dgate[j] = grow[j] * v[j] * s * (1.0 + gate[j] * (1.0 - s));
-                    }
-                }
+                silu_gate_gradient_rows(src, &g[k * 64 * h..][..d.len() / 2], d, h)
             });
         }
         Ok((CpuStorage::F32(dy), l1.shape().clone()))
