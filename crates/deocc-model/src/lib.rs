@@ -5,7 +5,7 @@
 //! trained with rectified flow and sampled in a few Euler steps.
 //!
 //! - [`config`]: presets (`tiny` for tests, `small` shipped, `large` shaped like SANA-600M);
-//! - [`model`]: the network; [`ops`]: fast CPU building blocks;
+//! - [`model`]: the network; [`ops`]: fast CPU building blocks; [`simd`]: their AVX2 dispatch;
 //! - [`flow`]: rectified-flow loss, timesteps, the Euler sampler;
 //! - [`data`]: batches from the synthetic benchmark's training pairs;
 //! - [`train`]: the resumable training loop (run directory, AdamW, EMA, checkpoints);

@@ -12,6 +12,9 @@
 //! - [`linear`]: a linear layer as row blocks of single-threaded gemm on candle's pool (forward
 //!   and both gradient products), never on gemm's rayon threads.
 //! - [`silu`], [`gelu`]: single-pass activations with a hand-written backward on [`fast_exp`].
+//!
+//! The element-wise kernels (activations, the SiLU gate, the depthwise convolution, softmax rows)
+//! run on AVX2 when the CPU has it, with the same results bit for bit ([`crate::simd`]).
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor, D};
 
@@ -1584,5 +1587,84 @@ impl CustomOp2 for SiluGateBackward {
             });
         }
         Ok((CpuStorage::F32(dy), l1.shape().clone()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The AVX2 versions of the dispatched kernels against the baseline ones (the `_kernel`
+    //! functions called from here are compiled without AVX2): the same bits, so results do not
+    //! depend on the CPU.
+    use super::*;
+
+    fn inputs(n: usize, seed: u32) -> Vec<f32> {
+        // A fixed pseudo-random spread over [-8, 8), including the activations' tails.
+        (0..n as u32)
+            .map(|i| {
+                let h = (i ^ seed).wrapping_mul(2_654_435_761).rotate_left(13);
+                (h % 16_000) as f32 / 1000.0 - 8.0
+            })
+            .collect()
+    }
+
+    fn same_bits(a: &[f32], b: &[f32], what: &str) {
+        assert_eq!(a.len(), b.len(), "{what}: length");
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert_eq!(x.to_bits(), y.to_bits(), "{what}[{i}]: {x} != {y}");
+        }
+    }
+
+    #[test]
+    fn dispatched_kernels_give_the_baseline_bits() {
+        if !crate::simd::has_avx2() {
+            eprintln!("no AVX2 on this CPU: the dispatched kernels are the baseline ones");
+        }
+        // 1003: not a multiple of any vector width, so the tails are covered too.
+        let x = inputs(1003, 1);
+        let g = inputs(1003, 2);
+        for kind in [Activation::Silu, Activation::Gelu] {
+            let (mut a, mut b) = (vec![0f32; x.len()], vec![0f32; x.len()]);
+            activation_values(kind, &x, &mut a);
+            activation_values_kernel(kind, &x, &mut b);
+            same_bits(&a, &b, "activation values");
+            activation_gradients(kind, &x, &g, &mut a);
+            activation_gradients_kernel(kind, &x, &g, &mut b);
+            same_bits(&a, &b, "activation gradients");
+        }
+
+        let h = 37;
+        let rows = inputs(2 * h * 5, 3);
+        let grad = inputs(h * 5, 4);
+        let (mut a, mut b) = (vec![0f32; h * 5], vec![0f32; h * 5]);
+        silu_gate_rows(&rows, &mut a, h);
+        silu_gate_rows_kernel(&rows, &mut b, h);
+        same_bits(&a, &b, "silu gate");
+        let (mut a, mut b) = (vec![0f32; 2 * h * 5], vec![0f32; 2 * h * 5]);
+        silu_gate_gradient_rows(&rows, &grad, &mut a, h);
+        silu_gate_gradient_rows_kernel(&rows, &grad, &mut b, h);
+        same_bits(&a, &b, "silu gate gradient");
+
+        let (mut a, mut b) = (x[..61].to_vec(), x[..61].to_vec());
+        softmax_row(&mut a, 0.3);
+        softmax_row_kernel(&mut b, 0.3);
+        same_bits(&a, &b, "softmax row");
+        let sum: f32 = a.iter().sum();
+        assert!((sum - 1.0).abs() < 1e-5, "softmax row sums to {sum}");
+        same_bits(&[lane_dot(&x, &g)], &[lane_dot_kernel(&x, &g)], "dot");
+
+        let (bsz, hh, wd, c) = (2, 5, 6, 19);
+        let img = inputs(bsz * hh * wd * c, 5);
+        let w = inputs(9 * c, 6);
+        let go = inputs(bsz * hh * wd * c, 7);
+        for row in [0, 3, 4, 7] {
+            let (mut a, mut b) = (vec![0f32; wd * c], vec![0f32; wd * c]);
+            dwconv_row(&img, &w, &mut a, row, hh, wd, c);
+            dwconv_row_kernel(&img, &w, &mut b, row, hh, wd, c);
+            same_bits(&a, &b, "depthwise conv row");
+            let (mut a, mut b) = (vec![0f32; 9 * c], vec![0f32; 9 * c]);
+            dwconv_weight_grad_row(&img, &go, &mut a, row, hh, wd, c);
+            dwconv_weight_grad_row_kernel(&img, &go, &mut b, row, hh, wd, c);
+            same_bits(&a, &b, "depthwise conv weight gradient row");
+        }
     }
 }
