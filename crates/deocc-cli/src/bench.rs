@@ -37,12 +37,37 @@ pub struct ModelArgs {
     python: String,
     #[arg(long)]
     no_torch: bool,
+    /// Rounds, each timing our side and then PyTorch's: the shared host's load drifts over
+    /// seconds, so the ratios are taken per round (neighbouring measurements) and the report
+    /// gives their median.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=20))]
+    rounds: u32,
+}
+
+/// One round's times of our side, in seconds.
+#[derive(Serialize, Clone, Copy)]
+struct OurTimes {
+    train_step_batch_8_s: f64,
+    forward_batch_1_s: f64,
+    complete_4_steps_batch_1_s: f64,
+    complete_4_steps_batch_8_s: f64,
+}
+
+#[derive(Serialize)]
+struct ModelRound {
+    ours: OurTimes,
+    torch: Option<serde_json::Value>,
+    train_step_ratio: Option<f64>,
+    forward_ratio: Option<f64>,
+    complete_4_steps_batch_1_ratio: Option<f64>,
 }
 
 #[derive(Serialize)]
 struct ModelReport {
     threads: usize,
     parameters: usize,
+    rounds: usize,
+    /// Our times: medians over the rounds.
     train_step_batch_8_s: f64,
     forward_batch_1_s: f64,
     complete_4_steps_batch_1_s: f64,
@@ -52,11 +77,27 @@ struct ModelReport {
     /// Forward time at 128x128 (4x the tokens) over 64x64.
     scaling_128_over_64_linear: f64,
     scaling_128_over_64_softmax: f64,
+    /// PyTorch's report of the round whose training-step ratio is the median.
     torch: Option<serde_json::Value>,
-    /// ours / PyTorch.
+    /// ours / PyTorch: medians of the per-round ratios.
     train_step_ratio: Option<f64>,
     forward_ratio: Option<f64>,
     complete_4_steps_batch_1_ratio: Option<f64>,
+    /// Every round, ours and PyTorch's, in the order they ran.
+    per_round: Vec<ModelRound>,
+}
+
+fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
 }
 
 fn model_bench(a: ModelArgs) -> Result<()> {
@@ -91,17 +132,20 @@ fn model_bench(a: ModelArgs) -> Result<()> {
     // Three warm-up steps on both sides: the allocator's arenas grow over the first steps (their
     // page faults showed in perf timelines for about five steps), and training is thousands of
     // steps in the steady state.
-    let (train_s, _) = warm_median_time_after(3, 9, || {
-        let loss = deocc_model::train::random_batch_loss(&model, 8, &mut rng, &dev)?;
-        let grads = loss.backward()?;
-        let g: std::collections::BTreeMap<String, Tensor> = vars
-            .iter()
-            .filter_map(|(k, v)| grads.get(v).map(|t| (k.clone(), t.clone())))
-            .collect();
-        step += 1;
-        opt.step(&vars, &g, step, 1e-4, 0.0)?;
-        Ok(())
-    })?;
+    let mut train_step = || -> Result<f64> {
+        Ok(warm_median_time_after(3, 9, || {
+            let loss = deocc_model::train::random_batch_loss(&model, 8, &mut rng, &dev)?;
+            let grads = loss.backward()?;
+            let g: std::collections::BTreeMap<String, Tensor> = vars
+                .iter()
+                .filter_map(|(k, v)| grads.get(v).map(|t| (k.clone(), t.clone())))
+                .collect();
+            step += 1;
+            opt.step(&vars, &g, step, 1e-4, 0.0)?;
+            Ok(())
+        })?
+        .0)
+    };
     let forward =
         |m: &GlDot, cfg: &GlDotConfig, b: usize, rng: &mut rand_chacha::ChaCha8Rng| -> Result<()> {
             let cond = randn(
@@ -128,12 +172,13 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         GlDot::new(&cfg, VarBuilder::from_tensors(tensors, DType::F32, &dev))?
     };
     let model = frozen;
-    let (fwd_s, _) = warm_median_time(30, || forward(&model, &cfg, 1, &mut rng))?;
-    let mut complete = |b: usize| -> Result<f64> {
+    let mut infer_rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let rng2 = &mut infer_rng;
+    let complete = |b: usize, rng: &mut rand_chacha::ChaCha8Rng| -> Result<f64> {
         Ok(warm_median_time(5, || {
-            let cond = randn((b, r, r, cc), &mut rng, &dev)?;
+            let cond = randn((b, r, r, cc), rng, &dev)?;
             let toks = model.encode(&cond)?;
-            let noise = randn((b, r, r, tc), &mut rng, &dev)?;
+            let noise = randn((b, r, r, tc), rng, &dev)?;
             euler_sample(&noise, 4, 1.0, |x, t| {
                 model.forward(x, &Tensor::full(t, b, &dev)?, &cond, &toks)
             })?;
@@ -141,8 +186,70 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         })?
         .0)
     };
-    let c1 = complete(1)?;
-    let c8 = complete(8)?;
+    let torch_config = if a.no_torch {
+        None
+    } else {
+        let dir = tempdir()?;
+        let mut j = serde_json::to_value(&cfg)?;
+        j["threads"] = serde_json::json!(rayon::current_num_threads());
+        let cfg_path = dir.join("config.json");
+        std::fs::write(&cfg_path, serde_json::to_string(&j)?)?;
+        Some((dir, cfg_path))
+    };
+    let mut rounds = Vec::new();
+    for round in 0..a.rounds {
+        eprintln!("round {} of {}: ours", round + 1, a.rounds);
+        let ours = OurTimes {
+            train_step_batch_8_s: train_step()?,
+            forward_batch_1_s: warm_median_time(30, || forward(&model, &cfg, 1, rng2))?.0,
+            complete_4_steps_batch_1_s: complete(1, rng2)?,
+            complete_4_steps_batch_8_s: complete(8, rng2)?,
+        };
+        let torch = match &torch_config {
+            Some((dir, cfg_path)) => Some(run_torch_bench(&a.python, dir, cfg_path)?),
+            None => None,
+        };
+        let ratio = |ours: f64, key: &str| {
+            torch
+                .as_ref()
+                .and_then(|t| t[key].as_f64())
+                .map(|x| ours / x)
+        };
+        rounds.push(ModelRound {
+            train_step_ratio: ratio(ours.train_step_batch_8_s, "train_step_batch_8_s"),
+            forward_ratio: ratio(ours.forward_batch_1_s, "forward_batch_1_s"),
+            complete_4_steps_batch_1_ratio: ratio(
+                ours.complete_4_steps_batch_1_s,
+                "complete_4_steps_batch_1_s",
+            ),
+            ours,
+            torch,
+        });
+    }
+    if let Some((dir, _)) = &torch_config {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+    let our_median =
+        |f: fn(&OurTimes) -> f64| median(&rounds.iter().map(|r| f(&r.ours)).collect::<Vec<_>>());
+    let ratio_median = |f: fn(&ModelRound) -> Option<f64>| -> Option<f64> {
+        let v: Option<Vec<f64>> = rounds.iter().map(f).collect();
+        v.map(|v| median(&v))
+    };
+    let train_s = our_median(|o| o.train_step_batch_8_s);
+    let fwd_s = our_median(|o| o.forward_batch_1_s);
+    let c1 = our_median(|o| o.complete_4_steps_batch_1_s);
+    let c8 = our_median(|o| o.complete_4_steps_batch_8_s);
+    let train_step_ratio = ratio_median(|r| r.train_step_ratio);
+    // PyTorch's own figures from the round at the median training-step ratio.
+    let torch = train_step_ratio.and_then(|m| {
+        rounds
+            .iter()
+            .min_by(|x, y| {
+                let d = |r: &ModelRound| (r.train_step_ratio.unwrap_or(f64::NAN) - m).abs();
+                d(x).total_cmp(&d(y))
+            })
+            .and_then(|r| r.torch.clone())
+    });
     let mut scaling = [0.0; 2];
     for (k, kind) in [AttentionKind::Linear, AttentionKind::Softmax]
         .into_iter()
@@ -154,49 +261,14 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         big.resolution = 128;
         let (ms, _) = build(&small)?;
         let (mb, _) = build(&big)?;
-        let (ts, _) = warm_median_time(5, || forward(&ms, &small, 1, &mut rng))?;
-        let (tb, _) = warm_median_time(3, || forward(&mb, &big, 1, &mut rng))?;
+        let (ts, _) = warm_median_time(5, || forward(&ms, &small, 1, rng2))?;
+        let (tb, _) = warm_median_time(3, || forward(&mb, &big, 1, rng2))?;
         scaling[k] = tb / ts;
     }
-    let torch = if a.no_torch {
-        None
-    } else {
-        let dir = tempdir()?;
-        let mut j = serde_json::to_value(&cfg)?;
-        j["threads"] = serde_json::json!(rayon::current_num_threads());
-        let cfg_path = dir.join("config.json");
-        std::fs::write(&cfg_path, serde_json::to_string(&j)?)?;
-        let out = dir.join("torch.json");
-        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/bench_torch.py");
-        eprintln!("torch: running scripts/bench_torch.py");
-        let status = Command::new(&a.python)
-            .arg(&script)
-            .arg(&cfg_path)
-            .arg(&out)
-            .status()
-            .with_context(|| format!("cannot run {}", a.python))?;
-        if status.code() == Some(3) {
-            bail!(
-                "PyTorch is not installed for {}: `pip install torch` (or pass --no-torch)",
-                a.python
-            );
-        }
-        if !status.success() {
-            bail!("{} failed ({status})", script.display());
-        }
-        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out)?)?;
-        let _ = std::fs::remove_dir_all(&dir);
-        Some(v)
-    };
-    let ratio = |ours: f64, key: &str| {
-        torch
-            .as_ref()
-            .and_then(|t| t[key].as_f64())
-            .map(|x| ours / x)
-    };
     let report = ModelReport {
         threads: rayon::current_num_threads(),
         parameters: deocc_model::model::parameter_count(&vm),
+        rounds: rounds.len(),
         train_step_batch_8_s: train_s,
         forward_batch_1_s: fwd_s,
         complete_4_steps_batch_1_s: c1,
@@ -205,13 +277,36 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         completions_per_second_batch_8: 8.0 / c8,
         scaling_128_over_64_linear: scaling[0],
         scaling_128_over_64_softmax: scaling[1],
-        train_step_ratio: ratio(train_s, "train_step_batch_8_s"),
-        forward_ratio: ratio(fwd_s, "forward_batch_1_s"),
-        complete_4_steps_batch_1_ratio: ratio(c1, "complete_4_steps_batch_1_s"),
+        train_step_ratio,
+        forward_ratio: ratio_median(|r| r.forward_ratio),
+        complete_4_steps_batch_1_ratio: ratio_median(|r| r.complete_4_steps_batch_1_ratio),
         torch,
+        per_round: rounds,
     };
     crate::report::write_report(&a.json, &report)?;
     Ok(())
+}
+
+/// Runs scripts/bench_torch.py once with the model configuration at `cfg_path`.
+fn run_torch_bench(python: &str, dir: &Path, cfg_path: &Path) -> Result<serde_json::Value> {
+    let out = dir.join("torch.json");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/bench_torch.py");
+    eprintln!("torch: running scripts/bench_torch.py");
+    let status = Command::new(python)
+        .arg(&script)
+        .arg(cfg_path)
+        .arg(&out)
+        .status()
+        .with_context(|| format!("cannot run {python}"))?;
+    if status.code() == Some(3) {
+        bail!("PyTorch is not installed for {python}: `pip install torch` (or pass --no-torch)");
+    }
+    if !status.success() {
+        bail!("{} failed ({status})", script.display());
+    }
+    let text =
+        std::fs::read_to_string(&out).with_context(|| format!("reading {}", out.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("parsing {}", out.display()))
 }
 
 #[derive(Args)]

@@ -328,6 +328,9 @@ pub struct AmodalArgs {
     /// Step counts to evaluate, comma-separated.
     #[arg(long, default_value = "1,2,4,8,50", value_delimiter = ',')]
     steps: Vec<usize>,
+    /// The step count of the per-level, held-out-shape, cross-view and depth figures.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    main_steps: u32,
     /// Which shards of --data to use: test (held-out, the reported figures) or val (for choosing
     /// the mask threshold).
     #[arg(long, default_value = "test")]
@@ -418,6 +421,7 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         pairs: a.pairs,
         steps: a.steps.clone(),
         mask_thresholds: a.mask_thresholds.clone(),
+        main_steps: a.main_steps as usize,
         ..AmodalEvalOptions::default()
     };
     eprintln!(
