@@ -101,6 +101,20 @@ fn median(values: &[f64]) -> f64 {
 }
 
 fn model_bench(a: ModelArgs) -> Result<()> {
+    if !a.no_torch {
+        // Fail before our side's minute of timing, not after it.
+        let importable = Command::new(&a.python)
+            .args(["-c", "import torch"])
+            .stderr(std::process::Stdio::null())
+            .status()
+            .with_context(|| format!("cannot run {}", a.python))?;
+        if !importable.success() {
+            bail!(
+                "PyTorch is not installed for {}: `pip install torch` (or pass --no-torch)",
+                a.python
+            );
+        }
+    }
     use candle_core::{DType, Device, Tensor};
     use candle_nn::{VarBuilder, VarMap};
     use deocc_model::config::{AttentionKind, GlDotConfig};
