@@ -87,17 +87,18 @@ struct ModelReport {
     per_round: Vec<ModelRound>,
 }
 
+/// The upper median (element `len / 2` after sorting), the convention of both sides' timers
+/// (`median_time` here and in scripts/bench_torch.py); NaN when empty.
 fn median(values: &[f64]) -> f64 {
     let mut v = values.to_vec();
     v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+fn torch_missing(python: &str) -> anyhow::Error {
+    anyhow::anyhow!(
+        "PyTorch is not installed for {python}: `pip install torch` (or pass --no-torch)"
+    )
 }
 
 fn model_bench(a: ModelArgs) -> Result<()> {
@@ -109,10 +110,7 @@ fn model_bench(a: ModelArgs) -> Result<()> {
             .status()
             .with_context(|| format!("cannot run {}", a.python))?;
         if !importable.success() {
-            bail!(
-                "PyTorch is not installed for {}: `pip install torch` (or pass --no-torch)",
-                a.python
-            );
+            return Err(torch_missing(&a.python));
         }
     }
     use candle_core::{DType, Device, Tensor};
@@ -211,38 +209,44 @@ fn model_bench(a: ModelArgs) -> Result<()> {
         Some((dir, cfg_path))
     };
     let mut rounds = Vec::new();
-    for round in 0..a.rounds {
-        eprintln!("round {} of {}: ours", round + 1, a.rounds);
-        let ours = OurTimes {
-            train_step_batch_8_s: train_step()?,
-            forward_batch_1_s: warm_median_time(30, || forward(&model, &cfg, 1, rng2))?.0,
-            complete_4_steps_batch_1_s: complete(1, rng2)?,
-            complete_4_steps_batch_8_s: complete(8, rng2)?,
-        };
-        let torch = match &torch_config {
-            Some((dir, cfg_path)) => Some(run_torch_bench(&a.python, dir, cfg_path)?),
-            None => None,
-        };
-        let ratio = |ours: f64, key: &str| {
-            torch
-                .as_ref()
-                .and_then(|t| t[key].as_f64())
-                .map(|x| ours / x)
-        };
-        rounds.push(ModelRound {
-            train_step_ratio: ratio(ours.train_step_batch_8_s, "train_step_batch_8_s"),
-            forward_ratio: ratio(ours.forward_batch_1_s, "forward_batch_1_s"),
-            complete_4_steps_batch_1_ratio: ratio(
-                ours.complete_4_steps_batch_1_s,
-                "complete_4_steps_batch_1_s",
-            ),
-            ours,
-            torch,
-        });
-    }
+    let mut run_rounds = || -> Result<()> {
+        for round in 0..a.rounds {
+            eprintln!("round {} of {}: ours", round + 1, a.rounds);
+            let ours = OurTimes {
+                train_step_batch_8_s: train_step()?,
+                forward_batch_1_s: warm_median_time(30, || forward(&model, &cfg, 1, rng2))?.0,
+                complete_4_steps_batch_1_s: complete(1, rng2)?,
+                complete_4_steps_batch_8_s: complete(8, rng2)?,
+            };
+            let torch = match &torch_config {
+                Some((dir, cfg_path)) => Some(run_torch_bench(&a.python, dir, cfg_path)?),
+                None => None,
+            };
+            let ratio = |ours: f64, key: &str| {
+                torch
+                    .as_ref()
+                    .and_then(|t| t[key].as_f64())
+                    .map(|x| ours / x)
+            };
+            rounds.push(ModelRound {
+                train_step_ratio: ratio(ours.train_step_batch_8_s, "train_step_batch_8_s"),
+                forward_ratio: ratio(ours.forward_batch_1_s, "forward_batch_1_s"),
+                complete_4_steps_batch_1_ratio: ratio(
+                    ours.complete_4_steps_batch_1_s,
+                    "complete_4_steps_batch_1_s",
+                ),
+                ours,
+                torch,
+            });
+        }
+        Ok(())
+    };
+    let result = run_rounds();
+    // The temporary folder goes on every path, the failed ones too.
     if let Some((dir, _)) = &torch_config {
         let _ = std::fs::remove_dir_all(dir);
     }
+    result?;
     let our_median =
         |f: fn(&OurTimes) -> f64| median(&rounds.iter().map(|r| f(&r.ours)).collect::<Vec<_>>());
     let ratio_median = |f: fn(&ModelRound) -> Option<f64>| -> Option<f64> {
@@ -313,7 +317,7 @@ fn run_torch_bench(python: &str, dir: &Path, cfg_path: &Path) -> Result<serde_js
         .status()
         .with_context(|| format!("cannot run {python}"))?;
     if status.code() == Some(3) {
-        bail!("PyTorch is not installed for {python}: `pip install torch` (or pass --no-torch)");
+        return Err(torch_missing(python));
     }
     if !status.success() {
         bail!("{} failed ({status})", script.display());
@@ -530,8 +534,7 @@ fn median_time<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f
         out = Some(f()?);
         times.push(t0.elapsed().as_secs_f64());
     }
-    times.sort_by(f64::total_cmp);
-    Ok((times[times.len() / 2], out.context("no repetition ran")?))
+    Ok((median(&times), out.context("no repetition ran")?))
 }
 
 /// Surface points of a benchmark scene (so normals and ICP see real structure), `n` of them, and a
