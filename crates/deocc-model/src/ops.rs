@@ -92,24 +92,30 @@ fn dwconv_row_kernel(
     wd: usize,
     c: usize,
 ) {
-    let (b, i) = (row_idx / h, row_idx % h);
-    for a in 0..3 {
-        let ii = i as isize + a as isize - 1;
-        if ii < 0 || ii >= h as isize {
-            continue;
+    let b = row_idx / h;
+    for_each_tap(row_idx % h, h, wd, |tap, ii, jj, j| {
+        let src = &x[((b * h + ii) * wd + jj) * c..][..c];
+        let wk = &w[tap * c..][..c];
+        let dst = &mut out_row[j * c..][..c];
+        for ((d, s), k) in dst.iter_mut().zip(src).zip(wk) {
+            *d += s * k;
         }
-        let in_row = &x[(b * h + ii as usize) * wd * c..][..wd * c];
+    });
+}
+
+/// Calls `f(tap, source row, source column, output column)` for every in-bounds tap of a 3x3
+/// stencil (tap = 3 * row offset + column offset, zero padding) around output row `i` of an
+/// image `h` rows by `w` columns: the walk the convolution and its weight gradient share.
+#[inline(always)]
+fn for_each_tap(i: usize, h: usize, w: usize, mut f: impl FnMut(usize, usize, usize, usize)) {
+    for a in 0..3 {
+        let Some(ii) = (i + a).checked_sub(1).filter(|&ii| ii < h) else {
+            continue;
+        };
         for e in 0..3 {
-            let wk = &w[(a * 3 + e) * c..][..c];
-            for j in 0..wd {
-                let jj = j as isize + e as isize - 1;
-                if jj < 0 || jj >= wd as isize {
-                    continue;
-                }
-                let src = &in_row[jj as usize * c..][..c];
-                let dst = &mut out_row[j * c..][..c];
-                for ((d, s), k) in dst.iter_mut().zip(src).zip(wk) {
-                    *d += s * k;
+            for j in 0..w {
+                if let Some(jj) = (j + e).checked_sub(1).filter(|&jj| jj < w) {
+                    f(a * 3 + e, ii, jj, j);
                 }
             }
         }
@@ -191,29 +197,16 @@ fn dwconv_weight_grad_row_kernel(
     w: usize,
     c: usize,
 ) {
-    let (bi, i) = (row_idx / h, row_idx % h);
-    let g_row = &g[(bi * h + i) * w * c..][..w * c];
-    for a in 0..3 {
-        let ii = i as isize + a as isize - 1;
-        if ii < 0 || ii >= h as isize {
-            continue;
+    let bi = row_idx / h;
+    let g_row = &g[row_idx * w * c..][..w * c];
+    for_each_tap(row_idx % h, h, w, |tap, ii, jj, j| {
+        let xs = &x[((bi * h + ii) * w + jj) * c..][..c];
+        let gs = &g_row[j * c..][..c];
+        let dst = &mut acc[tap * c..][..c];
+        for ((d, xv), gv) in dst.iter_mut().zip(xs).zip(gs) {
+            *d += xv * gv;
         }
-        let x_row = &x[(bi * h + ii as usize) * w * c..][..w * c];
-        for e in 0..3 {
-            let dst = &mut acc[(a * 3 + e) * c..][..c];
-            for j in 0..w {
-                let jj = j as isize + e as isize - 1;
-                if jj < 0 || jj >= w as isize {
-                    continue;
-                }
-                let xs = &x_row[jj as usize * c..][..c];
-                let gs = &g_row[j * c..][..c];
-                for ((d, xv), gv) in dst.iter_mut().zip(xs).zip(gs) {
-                    *d += xv * gv;
-                }
-            }
-        }
-    }
+    });
 }
 
 /// dL/dw[a, e, c] = sum_{b,i,j} grad[b,i,j,c] * x[b, i+a-1, j+e-1, c].
