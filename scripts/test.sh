@@ -4,12 +4,20 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo fmt --all -- --check
 cargo clippy --locked --all-targets --release -- -D warnings
-# Layering: the geometry and I/O crates must not pull the ML stack.
-for crate in deocc-geometry deocc-io deocc-synth; do
-  if cargo tree --locked -p "$crate" -e normal | grep -q candle; then
-    echo "error: $crate depends on candle; the geometry layers must stay free of the ML stack" >&2
+# Layering (ARCHITECTURE.md): the light crates never pull the ML stack, and the product path
+# never depends on the benchmark renderer.
+deny() { # crate, forbidden dependency, why
+  if cargo tree --locked -p "$1" -e normal --prefix none | grep -q "^$2 "; then
+    echo "error: $1 depends on $2; $3" >&2
     exit 1
   fi
+}
+for crate in deocc-geometry deocc-io deocc-completion deocc-synth; do
+  deny "$crate" candle-core "the geometry, I/O and completion-seam layers must stay free of the ML stack"
 done
+for crate in deocc-completion deocc-pipeline deocc-model; do
+  deny "$crate" deocc-synth "the product path must not depend on the benchmark renderer"
+done
+deny deocc-pipeline candle-core "the pipeline talks to completers through deocc-completion, not candle"
 # Two test threads on two cores: candle's and rayon's pools collapse when oversubscribed.
 RUST_TEST_THREADS=2 cargo test --locked --workspace --release

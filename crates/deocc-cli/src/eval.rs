@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use deocc_eval::amodal::{evaluate_amodal, AmodalEvalOptions};
 use deocc_model::data::{shards, PairData};
-use deocc_model::infer::Completer;
+use deocc_model::infer::GlDotCompleter;
 use deocc_synth::pairs::{split_scene_pairs, PairConfig, PairSet, Split};
 
 #[derive(Subcommand)]
@@ -190,8 +190,8 @@ fn perception(a: PerceptionArgs) -> Result<()> {
 pub struct ReconstructionArgs {
     #[arg(long, default_value = "bench/reconstruction.json")]
     json: PathBuf,
-    #[arg(long, default_value = "weights/gldot-small")]
-    weights: PathBuf,
+    #[command(flatten)]
+    completers: crate::completers::CompleterArgs,
     /// Number of bench-v1 scenes (the first N of its 50).
     #[arg(long, default_value_t = 50)]
     scenes: usize,
@@ -199,115 +199,18 @@ pub struct ReconstructionArgs {
     steps: usize,
 }
 
-#[derive(serde::Serialize)]
-struct ReconstructionReport {
-    benchmark: String,
-    scenes: usize,
-    rows: Vec<deocc_eval::reconstruction::TableRow>,
-    completeness_gain_whole_scene: f64,
-    completeness_gain_hidden_region: f64,
-    accuracy_change: f64,
-    chamfer_gain: f64,
-    completeness_gain_whole_scene_segmenter: f64,
-    completeness_gain_hidden_region_segmenter: f64,
-    accuracy_change_segmenter: f64,
-    /// The same gains without the plane fill: what GL-DoT's completions alone add.
-    completeness_gain_whole_scene_segmenter_objects_only: f64,
-    completeness_gain_hidden_region_segmenter_objects_only: f64,
-    objects_completed: usize,
-    objects_per_second: f64,
-    mean_stage_seconds: deocc_pipeline::StageTimings,
-}
-
 fn reconstruction(a: ReconstructionArgs) -> Result<()> {
-    use deocc_eval::reconstruction::{align_to_ground_truth, average_row, figures, in_frustum};
-    let completer = Completer::from_dir(&a.weights, &candle_core::Device::Cpu)
-        .with_context(|| format!("loading the model from {}", a.weights.display()))?;
-    let preset = deocc_synth::dataset::bench_v1();
-    let n = a.scenes.min(preset.seeds.len());
+    let chain = crate::completers::chain(&a.completers)?;
     let opts = deocc_pipeline::PipelineOptions {
         steps: a.steps,
         ..Default::default()
     };
-    let (mut vis_figs, mut deo_figs, mut seg_figs) = (Vec::new(), Vec::new(), Vec::new());
-    let mut seg_objects_figs = Vec::new();
-    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
-    let (mut objects, mut total_s) = (0usize, 0f64);
-    let mut stages = deocc_pipeline::StageTimings::default();
+    opts.validate()?;
+    let n = a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
-    for &seed in &preset.seeds[..n] {
-        let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
-        let scene = deocc_pipeline::input::SceneInput::from_rendered(&rendered);
-        let out = deocc_pipeline::run(&scene, &completer, &opts)?;
-        let cams: Vec<_> = scene.frames.iter().map(|f| f.camera).collect();
-        let gt = in_frustum(
-            &rendered.ground_truth.cloud,
-            &rendered.ground_truth.seen,
-            &cams,
-        );
-        vis_figs.push(figures(&align_to_ground_truth(&out.observed, &gt)?, &gt)?);
-        deo_figs.push(figures(&align_to_ground_truth(&out.completed, &gt)?, &gt)?);
-        // The same scene with the default segmenter instead of the ground-truth masks.
-        let mut unlabeled = deocc_pipeline::input::SceneInput::from_rendered(&rendered);
-        for f in &mut unlabeled.frames {
-            f.instances = None;
-        }
-        deocc_pipeline::ensure_instances(&mut unlabeled, &segmenter);
-        let seg_out = deocc_pipeline::run(&unlabeled, &completer, &opts)?;
-        seg_figs.push(figures(
-            &align_to_ground_truth(&seg_out.completed, &gt)?,
-            &gt,
-        )?);
-        // What GL-DoT alone adds: the same cloud without the plane fill.
-        let objects_only = {
-            let g = seg_out.completed.generated.as_deref().unwrap_or(&[]);
-            seg_out
-                .completed
-                .filter(|i| g.get(i).copied().unwrap_or(0) != deocc_pipeline::planes::PLANE_FILL)
-        };
-        seg_objects_figs.push(figures(&align_to_ground_truth(&objects_only, &gt)?, &gt)?);
-        objects += out.report.objects_completed;
-        total_s += out.report.timings.total_s;
-        let t = &out.report.timings;
-        stages.reconstruct_s += t.reconstruct_s / n as f64;
-        stages.occlusion_s += t.occlusion_s / n as f64;
-        stages.select_views_s += t.select_views_s / n as f64;
-        stages.complete_s += t.complete_s / n as f64;
-        stages.fuse_s += t.fuse_s / n as f64;
-        stages.planes_s += t.planes_s / n as f64;
-        stages.total_s += t.total_s / n as f64;
-        pb.inc(1);
-    }
+    let report =
+        deocc_eval::reconstruction::reconstruction_benchmark(&chain, &opts, n, &mut || pb.inc(1))?;
     pb.finish_and_clear();
-    let vis = average_row("visible-only", &vis_figs);
-    let deo = average_row("+ de-occlusion (ground-truth masks)", &deo_figs);
-    let seg = average_row("+ de-occlusion (default segmenter)", &seg_figs);
-    let seg_objects = average_row(
-        "+ de-occlusion, objects only, no plane fill (default segmenter)",
-        &seg_objects_figs,
-    );
-    let report = ReconstructionReport {
-        benchmark: preset.name.clone(),
-        scenes: n,
-        completeness_gain_whole_scene: 1.0 - deo.completeness_mean / vis.completeness_mean,
-        completeness_gain_hidden_region: 1.0
-            - deo.completeness_hidden_mean / vis.completeness_hidden_mean,
-        accuracy_change: deo.accuracy_mean / vis.accuracy_mean - 1.0,
-        chamfer_gain: 1.0 - deo.chamfer / vis.chamfer,
-        completeness_gain_whole_scene_segmenter: 1.0
-            - seg.completeness_mean / vis.completeness_mean,
-        completeness_gain_hidden_region_segmenter: 1.0
-            - seg.completeness_hidden_mean / vis.completeness_hidden_mean,
-        accuracy_change_segmenter: seg.accuracy_mean / vis.accuracy_mean - 1.0,
-        completeness_gain_hidden_region_segmenter_objects_only: 1.0
-            - seg_objects.completeness_hidden_mean / vis.completeness_hidden_mean,
-        completeness_gain_whole_scene_segmenter_objects_only: 1.0
-            - seg_objects.completeness_mean / vis.completeness_mean,
-        rows: vec![vis, deo, seg, seg_objects],
-        objects_completed: objects,
-        objects_per_second: objects as f64 / total_s.max(1e-9),
-        mean_stage_seconds: stages,
-    };
     crate::report::write_report(&a.json, &report)?;
     Ok(())
 }
@@ -398,7 +301,7 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     if a.split == "val" && a.data.is_none() {
         bail!("--split val needs --data (a folder with val-*.safetensors shards)");
     }
-    let mut completer = Completer::from_dir(&a.weights, &candle_core::Device::Cpu)?;
+    let mut completer = GlDotCompleter::from_dir(&a.weights, &candle_core::Device::Cpu)?;
     if let Some(th) = a.mask_threshold {
         completer.mask_threshold = th;
     }

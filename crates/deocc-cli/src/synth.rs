@@ -312,10 +312,10 @@ fn sheet(a: SheetArgs) -> Result<()> {
     let step = (rendered.views.len() / n).max(1);
     let mut picked: Vec<_> = rendered.views.into_iter().step_by(step).take(n).collect();
     if a.segments {
-        use deocc_pipeline::segment::{ConvexitySegmenter, Segmenter};
+        use deocc_pipeline::segment::ConvexitySegmenter;
         let seg = ConvexitySegmenter::default();
         for v in &mut picked {
-            let map = seg.segment(&v.depth, &v.camera);
+            let map = seg.segment_depth(&v.depth, &v.camera);
             // Draw segments as "amodal masks" of every segment id: the sheet colours them by id.
             v.amodal = Vec::new();
             v.frame.instance = map.ids;
@@ -324,5 +324,13 @@ fn sheet(a: SheetArgs) -> Result<()> {
     let img = deocc_synth::sheet::contact_sheet(&picked);
     deocc_io::images::write_rgb_png(&a.out, &img)?;
     println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+/// The example of `deocc run --example`: bench-v1 scene 0, written as a scene folder.
+pub fn write_example_scene(dir: &Path) -> Result<()> {
+    let p = deocc_synth::dataset::bench_v1();
+    let rendered = render_full_scene(&p.config, p.seeds[0])?;
+    write_scene(dir, &p.config, &rendered)?;
     Ok(())
 }

@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use candle_core::Device;
 use deocc_model::data::{shards, PairData};
-use deocc_model::infer::Completer;
+use deocc_model::infer::GlDotCompleter;
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -27,7 +27,7 @@ fn main() -> Result<()> {
     let pairs: usize = pairs.parse().context("PAIRS must be a number")?;
     let steps: usize = steps.parse().context("STEPS must be a number")?;
     let device = Device::Cpu;
-    let completer = Completer::from_dir(&PathBuf::from(weights), &device)?;
+    let completer = GlDotCompleter::from_dir(&PathBuf::from(weights), &device)?;
     let files = shards(std::path::Path::new("data/pairs"), split)?;
     if files.is_empty() {
         bail!("data/pairs: no {split}-*.safetensors shards");

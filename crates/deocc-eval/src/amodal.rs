@@ -6,7 +6,7 @@ use std::time::Instant;
 use candle_core::Tensor;
 use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
 use deocc_model::data::PairData;
-use deocc_model::infer::{Completer, Completion};
+use deocc_model::infer::{Completion, GlDotCompleter};
 use serde::Serialize;
 
 use crate::masks::{convex_hull_mask, iou};
@@ -131,7 +131,7 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
 }
 
 fn complete_all(
-    c: &Completer,
+    c: &GlDotCompleter,
     data: &PairData,
     idx: &[usize],
     steps: usize,
@@ -171,7 +171,7 @@ fn mask_of(m: &[u8]) -> Vec<bool> {
 
 /// Runs the whole evaluation.
 pub fn evaluate_amodal(
-    c: &Completer,
+    c: &GlDotCompleter,
     data: &PairData,
     opts: &AmodalEvalOptions,
 ) -> candle_core::Result<AmodalReport> {

@@ -9,3 +9,29 @@ pub mod amodal;
 pub mod masks;
 pub mod perception;
 pub mod reconstruction;
+pub mod scenes;
+
+/// What can stop an evaluation.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error(transparent)]
+    Pipeline(#[from] deocc_pipeline::PipelineError),
+    #[error(transparent)]
+    Synth(#[from] deocc_synth::SynthError),
+    #[error(transparent)]
+    Geometry(#[from] deocc_geometry::GeometryError),
+    #[error(transparent)]
+    Io(#[from] deocc_io::IoError),
+    #[error(transparent)]
+    Completion(#[from] deocc_completion::CompletionError),
+    #[error("model: {0}")]
+    Model(String),
+    #[error("{0}")]
+    Data(String),
+}
+
+impl From<candle_core::Error> for EvalError {
+    fn from(e: candle_core::Error) -> Self {
+        EvalError::Model(e.to_string())
+    }
+}

@@ -2,7 +2,7 @@
 //! and cross-view grouping (adjusted Rand index) with the adaptive threshold and fixed ones.
 
 use deocc_io::images::InstanceMap;
-use deocc_pipeline::matching::{adjusted_rand_index, match_masks, MaskCentroid, Threshold};
+use deocc_pipeline::matching::{match_masks, MaskCentroid, Threshold};
 use deocc_pipeline::occlusion::analyse_view;
 use deocc_synth::dataset::RenderedScene;
 use deocc_synth::shapes::Category;
@@ -136,11 +136,10 @@ pub fn grouping(r: &RenderedScene, threshold: Threshold) -> (f64, Option<f64>, f
 /// Adds to `ious` the matched IoU of every ground-truth instance (>= 50 px) of every view.
 pub fn segmenter_figures(
     r: &RenderedScene,
-    seg: &dyn deocc_pipeline::segment::Segmenter,
+    seg: &deocc_pipeline::segment::ConvexitySegmenter,
     counts: &mut DetectionCounts,
     ious: &mut SegmenterIous,
 ) {
-    use deocc_pipeline::segment::matched_ious;
     let structure: Vec<u16> = r.scene.structure_ids();
     for view in &r.views {
         let truth = InstanceMap {
@@ -148,7 +147,7 @@ pub fn segmenter_figures(
             height: view.frame.height,
             ids: view.frame.instance.clone(),
         };
-        let pred = seg.segment(&view.depth, &view.camera);
+        let pred = seg.segment_depth(&view.depth, &view.camera);
         for (t, iou) in matched_ious(&pred, &truth, 50, &[]) {
             let category = r
                 .scene
@@ -225,5 +224,113 @@ impl SegmenterIous {
             .iter()
             .map(|(k, &(s, n))| (k.clone(), s / n.max(1) as f64))
             .collect()
+    }
+}
+
+/// Adjusted Rand index between two labelings of the same items (1 = identical partitions).
+pub fn adjusted_rand_index(a: &[usize], b: &[usize]) -> f64 {
+    use std::collections::HashMap;
+    let n = a.len() as f64;
+    let mut table: HashMap<(usize, usize), f64> = HashMap::new();
+    let mut ra: HashMap<usize, f64> = HashMap::new();
+    let mut rb: HashMap<usize, f64> = HashMap::new();
+    for (&x, &y) in a.iter().zip(b) {
+        *table.entry((x, y)).or_default() += 1.0;
+        *ra.entry(x).or_default() += 1.0;
+        *rb.entry(y).or_default() += 1.0;
+    }
+    let c2 = |x: f64| x * (x - 1.0) / 2.0;
+    let index: f64 = table.values().map(|&v| c2(v)).sum();
+    let sa: f64 = ra.values().map(|&v| c2(v)).sum();
+    let sb: f64 = rb.values().map(|&v| c2(v)).sum();
+    let expected = sa * sb / c2(n).max(1e-12);
+    let max = (sa + sb) / 2.0;
+    if (max - expected).abs() < 1e-12 {
+        1.0
+    } else {
+        (index - expected) / (max - expected)
+    }
+}
+
+/// Matches every ground-truth instance to its best-overlapping segment; returns (instance id,
+/// IoU) for the ground-truth instances with at least `min_px` visible pixels, not in `skip`.
+pub fn matched_ious(
+    predicted: &InstanceMap,
+    truth: &InstanceMap,
+    min_px: usize,
+    skip: &[u16],
+) -> Vec<(u16, f64)> {
+    use std::collections::HashMap;
+    let mut inter: HashMap<(u16, u16), usize> = HashMap::new();
+    let mut area_t: HashMap<u16, usize> = HashMap::new();
+    let mut area_p: HashMap<u16, usize> = HashMap::new();
+    for (&t, &p) in truth.ids.iter().zip(&predicted.ids) {
+        if t != 0 {
+            *area_t.entry(t).or_default() += 1;
+        }
+        if p != 0 {
+            *area_p.entry(p).or_default() += 1;
+        }
+        if t != 0 && p != 0 {
+            *inter.entry((t, p)).or_default() += 1;
+        }
+    }
+    let mut best: HashMap<u16, f64> = HashMap::new();
+    for (&(t, p), &i) in &inter {
+        let iou = i as f64 / (area_t[&t] + area_p[&p] - i) as f64;
+        let b = best.entry(t).or_default();
+        *b = b.max(iou);
+    }
+    let mut out: Vec<(u16, f64)> = area_t
+        .iter()
+        .filter(|(t, &a)| a >= min_px && !skip.contains(t))
+        .map(|(&t, _)| (t, best.get(&t).copied().unwrap_or(0.0)))
+        .collect();
+    out.sort_by_key(|&(t, _)| t);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    #[test]
+    fn ari_of_known_partitions() {
+        assert!((adjusted_rand_index(&[0, 0, 1, 1], &[5, 5, 7, 7]) - 1.0).abs() < 1e-12);
+        assert!(adjusted_rand_index(&[0, 0, 1, 1], &[0, 1, 0, 1]) < 0.0);
+    }
+
+    #[test]
+    fn matching_groups_nearby_centroids_across_views() {
+        let objs = [
+            Point3::new(0.0f32, 0.0, 0.8),
+            Point3::new(0.3, 0.0, 0.8),
+            Point3::new(0.0, 0.4, 0.8),
+        ];
+        let mut masks = Vec::new();
+        for view in 0..4 {
+            for (k, o) in objs.iter().enumerate() {
+                // Partial views shift the centroid by a couple of centimetres.
+                let jitter = nalgebra::Vector3::new(0.01 * view as f32, -0.008 * k as f32, 0.005);
+                masks.push(MaskCentroid {
+                    view,
+                    local_id: k as u16 + 1,
+                    centroid: o + jitter,
+                    points: 100,
+                });
+            }
+        }
+        let m = match_masks(&masks, Threshold::Adaptive);
+        let truth: Vec<usize> = masks.iter().map(|m| m.local_id as usize).collect();
+        assert_eq!(
+            adjusted_rand_index(&m.group, &truth),
+            1.0,
+            "tau {}",
+            m.tau_m
+        );
+        // A threshold far too small splits every object into its views.
+        let tiny = match_masks(&masks, Threshold::Fixed(0.001));
+        assert_eq!(tiny.groups, masks.len());
     }
 }

@@ -122,3 +122,173 @@ pub fn average_row(method: &str, figs: &[MethodFigures]) -> TableRow {
         recall_hidden: avg(&|m| m.hidden_region.recall),
     }
 }
+
+/// A run's figures against its scene's ground truth (what `deocc run` reports for benchmark
+/// scenes): visible-only against completed, both aligned to the ground truth as the benchmark
+/// aligns them ([`align_to_ground_truth`]), so pose-free input is scored fairly.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunEvaluation {
+    pub ground_truth_points_in_frustum: usize,
+    pub visible_only: MethodFigures,
+    pub with_deocclusion: MethodFigures,
+    pub completeness_gain_whole_scene: f64,
+    pub completeness_gain_hidden_region: f64,
+    pub accuracy_change: f64,
+}
+
+/// Relative gain of `after` over `before` for a lower-is-better figure (`1 - after / before`).
+pub fn gain(before: f64, after: f64) -> f64 {
+    1.0 - after / before
+}
+
+/// Reads a ground-truth PLY with its `seen` flags (every point seen when the file has none).
+pub fn read_ground_truth(
+    path: &std::path::Path,
+) -> Result<(PointCloud, Vec<bool>), deocc_io::IoError> {
+    let gt = deocc_io::ply::read_ply(path)?;
+    let seen: Vec<bool> = match gt.extra("seen") {
+        Some(s) => s.iter().map(|&v| v > 0.0).collect(),
+        None => vec![true; gt.vertices.len()],
+    };
+    Ok((gt.vertices, seen))
+}
+
+/// [`RunEvaluation`] of an observed and a completed cloud.
+pub fn evaluate_run(
+    gt: &PointCloud,
+    seen: &[bool],
+    cameras: &[Camera],
+    observed: &PointCloud,
+    completed: &PointCloud,
+) -> Result<RunEvaluation, GeometryError> {
+    let egt = in_frustum(gt, seen, cameras);
+    let vis = figures(&align_to_ground_truth(observed, &egt)?, &egt)?;
+    let deo = figures(&align_to_ground_truth(completed, &egt)?, &egt)?;
+    Ok(RunEvaluation {
+        ground_truth_points_in_frustum: egt.cloud.len(),
+        completeness_gain_whole_scene: gain(
+            vis.whole_scene.completeness_mean,
+            deo.whole_scene.completeness_mean,
+        ),
+        completeness_gain_hidden_region: gain(
+            vis.hidden_region.completeness_mean,
+            deo.hidden_region.completeness_mean,
+        ),
+        accuracy_change: deo.whole_scene.accuracy_mean / vis.whole_scene.accuracy_mean - 1.0,
+        visible_only: vis,
+        with_deocclusion: deo,
+    })
+}
+
+/// `deocc eval reconstruction`: bench-v1 scenes, visible-only against de-occlusion with the
+/// ground-truth masks and with the default segmenter, and the segmenter's run without the plane
+/// fill (what the object completions alone add).
+#[derive(Debug, Clone, Serialize)]
+pub struct ReconstructionReport {
+    pub benchmark: String,
+    pub scenes: usize,
+    pub completers: String,
+    pub rows: Vec<TableRow>,
+    pub completeness_gain_whole_scene: f64,
+    pub completeness_gain_hidden_region: f64,
+    pub accuracy_change: f64,
+    pub chamfer_gain: f64,
+    pub completeness_gain_whole_scene_segmenter: f64,
+    pub completeness_gain_hidden_region_segmenter: f64,
+    pub accuracy_change_segmenter: f64,
+    /// The same gains without the plane fill: what the completer alone adds.
+    pub completeness_gain_whole_scene_segmenter_objects_only: f64,
+    pub completeness_gain_hidden_region_segmenter_objects_only: f64,
+    pub objects_completed: usize,
+    pub objects_per_second: f64,
+    pub mean_stage_seconds: deocc_pipeline::StageTimings,
+}
+
+/// Runs [`ReconstructionReport`] on the first `scenes` of bench-v1; `tick` is called after each.
+pub fn reconstruction_benchmark(
+    chain: &deocc_completion::CompleterChain,
+    opts: &deocc_pipeline::PipelineOptions,
+    scenes: usize,
+    tick: &mut dyn FnMut(),
+) -> Result<ReconstructionReport, crate::EvalError> {
+    use deocc_pipeline::instances::ensure_instances;
+    use deocc_pipeline::segment::ConvexitySegmenter;
+    let preset = deocc_synth::dataset::bench_v1();
+    let n = scenes.min(preset.seeds.len());
+    let (mut vis_figs, mut deo_figs, mut seg_figs) = (Vec::new(), Vec::new(), Vec::new());
+    let mut seg_objects_figs = Vec::new();
+    let segmenter = ConvexitySegmenter::default();
+    let (mut objects, mut total_s) = (0usize, 0f64);
+    let mut stages = deocc_pipeline::StageTimings::default();
+    for &seed in &preset.seeds[..n] {
+        let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        let scene = rendered.scene_input();
+        let out = deocc_pipeline::run(&scene, chain, opts, &Vec::new())?;
+        let cams: Vec<_> = scene.frames.iter().map(|f| f.camera).collect();
+        let gt = in_frustum(
+            &rendered.ground_truth.cloud,
+            &rendered.ground_truth.seen,
+            &cams,
+        );
+        vis_figs.push(figures(&align_to_ground_truth(&out.observed, &gt)?, &gt)?);
+        deo_figs.push(figures(&align_to_ground_truth(&out.completed, &gt)?, &gt)?);
+        // The same scene with the default segmenter instead of the ground-truth masks.
+        let mut unlabelled = crate::scenes::unlabelled(scene);
+        ensure_instances(&mut unlabelled, &segmenter)?;
+        let seg_out = deocc_pipeline::run(&unlabelled, chain, opts, &Vec::new())?;
+        seg_figs.push(figures(
+            &align_to_ground_truth(&seg_out.completed, &gt)?,
+            &gt,
+        )?);
+        // What the completer alone adds: the same cloud without the plane fill.
+        let plane = deocc_geometry::Provenance::PlaneFill.code();
+        let objects_only = {
+            let g = seg_out.completed.generated.as_deref().unwrap_or(&[]);
+            seg_out
+                .completed
+                .filter(|i| g.get(i).copied().unwrap_or(0) != plane)
+        };
+        seg_objects_figs.push(figures(&align_to_ground_truth(&objects_only, &gt)?, &gt)?);
+        objects += out.report.objects_completed;
+        total_s += out.report.timings.total_s;
+        stages.add_scaled(&out.report.timings, 1.0 / n as f64);
+        tick();
+    }
+    let vis = average_row("visible-only", &vis_figs);
+    let deo = average_row("+ de-occlusion (ground-truth masks)", &deo_figs);
+    let seg = average_row("+ de-occlusion (default segmenter)", &seg_figs);
+    let seg_objects = average_row(
+        "+ de-occlusion, objects only, no plane fill (default segmenter)",
+        &seg_objects_figs,
+    );
+    Ok(ReconstructionReport {
+        benchmark: preset.name.clone(),
+        scenes: n,
+        completers: chain.describe(),
+        completeness_gain_whole_scene: gain(vis.completeness_mean, deo.completeness_mean),
+        completeness_gain_hidden_region: gain(
+            vis.completeness_hidden_mean,
+            deo.completeness_hidden_mean,
+        ),
+        accuracy_change: deo.accuracy_mean / vis.accuracy_mean - 1.0,
+        chamfer_gain: gain(vis.chamfer, deo.chamfer),
+        completeness_gain_whole_scene_segmenter: gain(vis.completeness_mean, seg.completeness_mean),
+        completeness_gain_hidden_region_segmenter: gain(
+            vis.completeness_hidden_mean,
+            seg.completeness_hidden_mean,
+        ),
+        accuracy_change_segmenter: seg.accuracy_mean / vis.accuracy_mean - 1.0,
+        completeness_gain_hidden_region_segmenter_objects_only: gain(
+            vis.completeness_hidden_mean,
+            seg_objects.completeness_hidden_mean,
+        ),
+        completeness_gain_whole_scene_segmenter_objects_only: gain(
+            vis.completeness_mean,
+            seg_objects.completeness_mean,
+        ),
+        rows: vec![vis, deo, seg, seg_objects],
+        objects_completed: objects,
+        objects_per_second: objects as f64 / total_s.max(1e-9),
+        mean_stage_seconds: stages,
+    })
+}

@@ -47,3 +47,58 @@ fn adaptive_grouping_recovers_instances() {
         "a 1 mm threshold should split instances: {tiny}"
     );
 }
+
+/// The merge stage of the default segmenter: a table's legs join its top (they meet it at concave
+/// creases, hidden under it), which the region growing alone leaves apart.
+#[test]
+fn segmenter_merge_stage_keeps_a_table_whole() {
+    use deocc_eval::perception::matched_ious;
+    use deocc_pipeline::segment::ConvexitySegmenter;
+    use deocc_synth::scene::SceneConfig;
+    use deocc_synth::shapes::Category;
+    let cfg = SceneConfig {
+        width: 640,
+        height: 480,
+        views: 3,
+        tabletop_objects_min: 1,
+        tabletop_objects_max: 2,
+        chairs_max: 0,
+        shelf_probability: 0.0,
+        gt_points_per_m2: 10.0,
+        ..SceneConfig::default()
+    };
+    let rendered = deocc_synth::dataset::render_full_scene(&cfg, 21).unwrap();
+    let table = rendered
+        .scene
+        .objects
+        .iter()
+        .find(|o| o.category == Category::Table)
+        .unwrap()
+        .instance_id;
+    let seg = ConvexitySegmenter::default();
+    let mut no_merge = seg.clone();
+    no_merge.max_object_extent_m = 0.0; // no merging at all
+    let (mut with, mut without) = (0.0, 0.0);
+    for view in &rendered.views {
+        let truth = deocc_io::images::InstanceMap {
+            width: view.frame.width,
+            height: view.frame.height,
+            ids: view.frame.instance.clone(),
+        };
+        let iou_of = |s: &ConvexitySegmenter| {
+            matched_ious(&s.segment_depth(&view.depth, &view.camera), &truth, 50, &[])
+                .into_iter()
+                .find(|&(t, _)| t == table)
+                .map(|(_, iou)| iou)
+                .unwrap()
+        };
+        with += iou_of(&seg) / rendered.views.len() as f64;
+        without += iou_of(&no_merge) / rendered.views.len() as f64;
+    }
+    // Measured: 0.85 against 0.71.
+    assert!(with > 0.8, "table IoU {with:.3} with the merge stage");
+    assert!(
+        with > without + 0.1,
+        "merge {with:.3} vs no merge {without:.3}"
+    );
+}

@@ -127,8 +127,9 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> 
 
 /// Adds `generated` points to `observed` without duplicating surfaces: generated points are
 /// voxel-downsampled, and any that falls into a voxel already holding an observed point is dropped
-/// (the sensor wins). Observed points are kept as they are; the result carries the generated flag
-/// (0 observed, 1 generated, or the generated points' own code if above 1).
+/// (the sensor wins). Observed points are kept as they are; the result carries the provenance code
+/// ([`crate::Provenance`]): 0 for observed points, the generated points' own code, or
+/// [`crate::Provenance::Model`] for generated points that carry none (or carry 0).
 pub fn fuse_generated(
     observed: &PointCloud,
     generated: &PointCloud,
@@ -149,7 +150,7 @@ pub fn fuse_generated(
         .map(|p| voxel_key(p, &origin, voxel))
         .collect();
     let mut gen = generated.clone();
-    // Provenance codes above 1 (what generated a point) are kept; anything else becomes 1.
+    // A generated point keeps its provenance code; one without (or with the observed code) is Model.
     gen.generated = Some(match &generated.generated {
         Some(g) => g.iter().map(|&x| x.max(1)).collect(),
         None => vec![1; gen.len()],

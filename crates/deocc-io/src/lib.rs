@@ -8,14 +8,18 @@
 //!   instance id and generated flag;
 //! - [`images`]: 16-bit depth PNG in millimetres, u16 instance maps, masks, RGB;
 //! - [`cameras`]: intrinsics and `world_from_camera` poses as JSON;
-//! - [`mesh`]: OBJ / STL / PLY meshes.
+//! - [`mesh`]: OBJ / STL / PLY meshes;
+//! - [`scene`]: the scene folder (frames, cameras, metadata), deocc's input;
+//! - [`pairs`]: GL-DoT training-pair shards (safetensors).
 
 pub mod atomic;
 pub mod cameras;
 pub mod error;
 pub mod images;
 pub mod mesh;
+pub mod pairs;
 pub mod ply;
+pub mod scene;
 
 pub use error::{IoError, IoErrorKind, Result};
 pub use ply::{read_point_cloud, write_point_cloud, PlyEncoding};

@@ -11,28 +11,9 @@ pub enum AttentionKind {
     Softmax,
 }
 
-/// The amodal mask the residual model starts from (its output with a zero residual).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum MaskPrior {
-    /// The visible mask ("amodal = visible"): what models before the seventh condition channel
-    /// were trained with, hence the default when a stored config does not name one.
-    #[default]
-    Visible,
-    /// The geometric prior of condition channel 6 ([`crate::data::hull_prior`]: the visible
-    /// mask's convex hull where the scene is in front), the best mask measured without a model
-    /// (test mIoU 0.789 against 0.684 for the visible mask). The model then learns corrections
-    /// to a good answer instead of re-deriving it.
-    HullInFront,
-    /// The hull prior extended by the ellipse fitted to the object's own contour where the scene
-    /// is in front ([`crate::data::ellipse_prior`]), carried in condition channel 6 instead of
-    /// the hull: validation mIoU 0.816 against 0.780 for the hull, without a model.
-    EllipseInFront,
-    /// The ellipse prior extended by the bounding box of the object's silhouette where the scene
-    /// is in front ([`crate::data::ellipse_or_box_prior`]): validation mIoU 0.825, without a
-    /// model. The presets' prior.
-    EllipseOrBoxInFront,
-}
+/// The amodal mask the residual model starts from (its output with a zero residual), carried
+/// in condition channel 6: [`deocc_completion::priors`].
+pub use deocc_completion::MaskPrior;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GlDotConfig {
@@ -55,7 +36,7 @@ pub struct GlDotConfig {
     pub cond_patch: usize,
     pub cond_depth: usize,
     /// The denoiser generates the residual over the visible prior (the crop's visible pixels on
-    /// white, the visible mask, the visible depth; see [`crate::data::residual_prior`]) instead of
+    /// white, the visible mask, the visible depth; see [`crate::encode::residual_prior`]) instead of
     /// the whole target. The unoccluded part of an object is then zero to generate, and the model
     /// spends its capacity on the hidden part. Older weights were trained without it.
     #[serde(default)]

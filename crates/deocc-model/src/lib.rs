@@ -7,12 +7,15 @@
 //! - [`config`]: presets (`tiny` for tests, `small` shipped, `large` shaped like SANA-600M);
 //! - [`model`]: the network; [`ops`]: fast CPU building blocks; [`simd`]: their AVX2 dispatch;
 //! - [`flow`]: rectified-flow loss, timesteps, the Euler sampler;
-//! - [`data`]: batches from the synthetic benchmark's training pairs;
+//! - [`encode`]: the channel encoding of crops, written once for training and inference;
+//! - [`data`]: batches from the training pairs;
 //! - [`train`]: the resumable training loop (run directory, AdamW, EMA, checkpoints);
-//! - [`infer`]: loading a trained model and completing crops.
+//! - [`infer`]: loading a trained model and completing crops ([`GlDotCompleter`], one
+//!   implementation of the pipeline's `deocc_completion::Completer` seam).
 
 pub mod config;
 pub mod data;
+pub mod encode;
 pub mod flow;
 pub mod infer;
 pub mod init;
@@ -23,4 +26,5 @@ pub mod simd;
 pub mod train;
 
 pub use config::{GlDotConfig, MaskPrior};
+pub use infer::GlDotCompleter;
 pub use model::GlDot;

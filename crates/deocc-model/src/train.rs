@@ -71,11 +71,11 @@ pub struct TrainConfig {
     /// middle). Chosen on validation pairs after training (`deocc eval amodal --split val
     /// --mask-thresholds ...`) and shipped with the weights in train.json.
     pub mask_threshold: f32,
-    /// Inference, not training: samples averaged per completion ([`crate::infer::Completer`]'s
+    /// Inference, not training: samples averaged per completion ([`crate::infer::GlDotCompleter`]'s
     /// `samples`), chosen on validation pairs like the threshold and shipped with it.
     pub inference_samples: usize,
     /// Inference, not training: keep the geometric prior's pixels in the amodal mask
-    /// ([`crate::infer::Completer`]'s `keep_prior`), chosen on validation pairs.
+    /// ([`crate::infer::GlDotCompleter`]'s `keep_prior`), chosen on validation pairs.
     pub mask_keeps_prior: bool,
 }
 
@@ -477,7 +477,7 @@ impl Trainer {
         let flips: Vec<bool> = (0..b).map(|_| rng.random_bool(0.5)).collect();
         let (x0, cond) = data.batch(indices, &flips, &self.device)?;
         let x0 = if cfg.model.residual {
-            (x0 - crate::data::residual_prior(&cond, cfg.model.mask_prior)?)?
+            (x0 - crate::encode::residual_prior(&cond, cfg.model.mask_prior)?)?
         } else {
             x0
         };

@@ -1,19 +1,18 @@
-//! Multi-view free-space carving of generated geometry.
+//! Stage: carving. Multi-view free-space carving of generated geometry.
 //!
 //! A point that no input view sees must be hidden in every view: each view with a depth
 //! measurement where the point projects must see something in front of it. If a view measures the
 //! point's own depth, the point is observed already (a generated copy adds nothing); if a view
 //! measures beyond it, the sensor saw through empty space there and the point is wrong. The
-//! completion's own view is checked at fusion time ([`crate::complete::fuse_completion`]); this
+//! completion's own view is checked at fusion time ([`crate::fuse::fuse_completion`]); this
 //! test adds the other views, which a segmenter's mistakes (a mask spanning two objects, a
 //! completion running into the background) most often contradict.
 
 use deocc_geometry::camera::Projector;
 use deocc_geometry::PointCloud;
+use deocc_io::scene::SceneInput;
 use nalgebra::Point3;
 use rayon::prelude::*;
-
-use crate::input::SceneInput;
 
 /// Depth tolerance of the test at distance `z` (sensor noise grows with range): a point counts as
 /// hidden behind a measurement only if it is this much farther than it.

@@ -1,4 +1,4 @@
-//! Per-view occlusion: two instance masks that touch, the farther one (by the median depth step
+//! Stage: occlusion. Per view, two instance masks that touch, the farther one (by the median depth step
 //! across their shared boundary) is occluded by the nearer one. Also records truncation by the
 //! image border and missing depth along an instance's boundary.
 
@@ -102,4 +102,39 @@ pub fn analyse_view(instances: &InstanceMap, depth: &DepthMap) -> Vec<MaskOcclus
             }
         })
         .collect()
+}
+
+/// The instances to complete, each with its candidate views `(view, visible pixels)`: an
+/// instance occluded in some view (and not truncated there, not room structure) with those
+/// views; with `unoccluded_too`, also every other non-structure instance with every view it is
+/// seen untruncated in (its far side is hidden in all of them).
+pub fn instances_to_complete(
+    occlusion: &[Vec<MaskOcclusion>],
+    structure_ids: &[u16],
+    unoccluded_too: bool,
+) -> BTreeMap<u16, Vec<(usize, usize)>> {
+    let mut occluded: BTreeMap<u16, Vec<(usize, usize)>> = BTreeMap::new();
+    let mut seen: BTreeMap<u16, Vec<(usize, usize)>> = BTreeMap::new();
+    for (v, masks) in occlusion.iter().enumerate() {
+        for m in masks {
+            if structure_ids.contains(&m.instance_id) || m.truncated {
+                continue;
+            }
+            if m.is_occluded() {
+                occluded
+                    .entry(m.instance_id)
+                    .or_default()
+                    .push((v, m.visible_px));
+            }
+            seen.entry(m.instance_id)
+                .or_default()
+                .push((v, m.visible_px));
+        }
+    }
+    if unoccluded_too {
+        for (id, views) in seen {
+            occluded.entry(id).or_insert(views);
+        }
+    }
+    occluded
 }

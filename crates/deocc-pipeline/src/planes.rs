@@ -1,5 +1,5 @@
-//! Completing the support planes (floor, walls, large flat tops) behind what stands in front of
-//! them. Objects are completed by GL-DoT; the largest hidden surfaces of a scene are the floor
+//! Stage: planes. Completing the support planes (floor, walls, large flat tops) behind what
+//! stands in front of them. Objects are completed by a completer; the largest hidden surfaces of a scene are the floor
 //! under a table and the walls behind furniture, and for those a plane is the right prior.
 //!
 //! Each large planar instance is fitted with a plane; instances on the same plane (a floor split
@@ -7,20 +7,17 @@
 //! on the plane inside the convex hull of the observed plane points that no observed point covers.
 //! A candidate is kept only if the views agree that it is hidden: every view with a measurement
 //! where it projects sees something in front of it (none sees it, none sees through it). Points so
-//! made carry provenance code [`PLANE_FILL`] in the cloud's `generated` property.
+//! made carry [`Provenance::PlaneFill`] in the cloud's `generated` property.
 
 use std::collections::{BTreeMap, HashSet};
 
 use deocc_geometry::camera::Projector;
 use deocc_geometry::normals::smallest_eigenvector;
-use deocc_geometry::PointCloud;
+use deocc_geometry::{PointCloud, Provenance};
+use deocc_io::scene::SceneInput;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
 use crate::carve::hidden_in_views;
-use crate::input::SceneInput;
-
-/// `generated` code of points filled in on planes (GL-DoT's points are 1).
-pub const PLANE_FILL: u8 = 2;
 
 #[derive(Debug, Clone)]
 pub struct PlaneOptions {
@@ -270,7 +267,7 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             }
         }
     }
-    out.generated = Some(vec![PLANE_FILL; positions.len()]);
+    out.generated = Some(vec![Provenance::PlaneFill.code(); positions.len()]);
     out.positions = positions;
     out.colors = Some(colors);
     out.instance = Some(ids);

@@ -1,5 +1,5 @@
-//! Instance segmentation behind a trait. Two implementations: masks given with the input, and a
-//! default RGB-D segmenter that needs no weights.
+//! Instance segmentation behind a trait ([`Segmenter`]): the default RGB-D segmenter here needs no
+//! weights; masks given with the input need no segmenter ([`crate::instances`]).
 //!
 //! The default segmenter grows regions over the pixel grid by local convexity (the criterion of
 //! LCCP, Stein et al. 2014, applied to neighbouring pixels): two neighbouring pixels belong to the
@@ -21,11 +21,16 @@
 use deocc_geometry::camera::Camera;
 use deocc_geometry::DepthMap;
 use deocc_io::images::InstanceMap;
+use deocc_io::scene::Frame;
 use nalgebra::{Point3, Vector3};
 
-/// Something that turns an RGB-D frame into an instance map (ids local to the frame).
+use crate::PipelineError;
+
+/// Turns an RGB-D frame into an instance map whose ids are local to the frame (0 = background);
+/// [`crate::instances::ensure_instances`] matches them across views. A learned segmenter loading
+/// weights from a path the user gives plugs in here.
 pub trait Segmenter: Send + Sync {
-    fn segment(&self, depth: &DepthMap, camera: &Camera) -> InstanceMap;
+    fn segment(&self, frame: &Frame) -> Result<InstanceMap, PipelineError>;
 }
 
 /// The default RGB-D segmenter (see the module docs). Concave bends gentler than `smooth_deg`
@@ -314,7 +319,14 @@ impl ConvexitySegmenter {
 }
 
 impl Segmenter for ConvexitySegmenter {
-    fn segment(&self, depth: &DepthMap, camera: &Camera) -> InstanceMap {
+    fn segment(&self, frame: &Frame) -> Result<InstanceMap, PipelineError> {
+        Ok(self.segment_depth(&frame.depth, &frame.camera))
+    }
+}
+
+impl ConvexitySegmenter {
+    /// Segments a depth map seen by `camera` (gravity from its pose); RGB is not used.
+    pub fn segment_depth(&self, depth: &DepthMap, camera: &Camera) -> InstanceMap {
         let (w, h) = (depth.width() as usize, depth.height() as usize);
         let d = depth.data();
         let (pts, normals) = self.geometry(depth, camera);
@@ -453,42 +465,4 @@ impl ConvexitySegmenter {
             }
         }
     }
-}
-
-/// Matches every ground-truth instance to its best-overlapping segment; returns (instance id,
-/// IoU) for the ground-truth instances with at least `min_px` visible pixels, not in `skip`.
-pub fn matched_ious(
-    predicted: &InstanceMap,
-    truth: &InstanceMap,
-    min_px: usize,
-    skip: &[u16],
-) -> Vec<(u16, f64)> {
-    use std::collections::HashMap;
-    let mut inter: HashMap<(u16, u16), usize> = HashMap::new();
-    let mut area_t: HashMap<u16, usize> = HashMap::new();
-    let mut area_p: HashMap<u16, usize> = HashMap::new();
-    for (&t, &p) in truth.ids.iter().zip(&predicted.ids) {
-        if t != 0 {
-            *area_t.entry(t).or_default() += 1;
-        }
-        if p != 0 {
-            *area_p.entry(p).or_default() += 1;
-        }
-        if t != 0 && p != 0 {
-            *inter.entry((t, p)).or_default() += 1;
-        }
-    }
-    let mut best: HashMap<u16, f64> = HashMap::new();
-    for (&(t, p), &i) in &inter {
-        let iou = i as f64 / (area_t[&t] + area_p[&p] - i) as f64;
-        let b = best.entry(t).or_default();
-        *b = b.max(iou);
-    }
-    let mut out: Vec<(u16, f64)> = area_t
-        .iter()
-        .filter(|(t, &a)| a >= min_px && !skip.contains(t))
-        .map(|(&t, _)| (t, best.get(&t).copied().unwrap_or(0.0)))
-        .collect();
-    out.sort_by_key(|&(t, _)| t);
-    out
 }

@@ -1,4 +1,9 @@
-use deocc_pipeline::input::read_scene;
+use deocc_completion::rules::RulesCompleter;
+use deocc_completion::{
+    Completer, CompleterChain, CompletionError, CompletionOptions, CropCompletion, CropCondition,
+    CropRequest, Provenance,
+};
+use deocc_pipeline::{read_scene, PipelineOptions};
 use deocc_synth::dataset::{render_full_scene, write_scene};
 use deocc_synth::scene::SceneConfig;
 
@@ -31,20 +36,44 @@ fn scene_folder_errors_name_the_file() {
     assert!(e.contains("000001.png"), "{e}");
 }
 
+/// Frame names are plain file names, each once: no frame reads another's images or a file
+/// outside the scene folder.
+#[test]
+fn frame_names_with_paths_or_duplicates_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let r = render_full_scene(&config(), 5).unwrap();
+    write_scene(dir.path(), &config(), &r).unwrap();
+    let path = dir.path().join("cameras.json");
+    let original = std::fs::read_to_string(&path).unwrap();
+    for (bad, expect) in [
+        ("../../../x", "not a plain file name"),
+        ("/abs/path", "not a plain file name"),
+        ("000000", "appears twice"),
+    ] {
+        let mut json: serde_json::Value = serde_json::from_str(&original).unwrap();
+        json["frames"][1]["name"] = serde_json::Value::String(bad.into());
+        std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+        let e = read_scene(dir.path()).err().unwrap().to_string();
+        assert!(
+            e.contains("cameras.json") && e.contains(expect),
+            "{bad}: {e}"
+        );
+    }
+}
+
 /// Pose-free input: frame-to-frame point-to-plane ICP recovers the camera motion of bench-v1's
 /// robot-head sweep (10 views, 10 degrees and ~25 cm between frames) to within half a degree and
 /// a centimetre per frame (measured: under 0.01 degree and 0.5 mm), and the recovered world has
 /// gravity along -z.
 #[test]
 fn frame_to_frame_icp_recovers_the_camera_path() {
-    use deocc_pipeline::input::SceneInput;
-    use deocc_pipeline::poses::FrameToFrameIcp;
+    use deocc_pipeline::registration::register_unposed;
     let cfg = SceneConfig {
         views: 10,
         ..config()
     };
     let rendered = render_full_scene(&cfg, 11).unwrap();
-    let mut scene = SceneInput::from_rendered(&rendered);
+    let mut scene = rendered.scene_input();
     let truth: Vec<_> = scene
         .frames
         .iter()
@@ -53,9 +82,13 @@ fn frame_to_frame_icp_recovers_the_camera_path() {
     for f in &mut scene.frames {
         f.camera.world_from_camera = nalgebra::Isometry3::identity();
     }
-    let reports = FrameToFrameIcp::default()
-        .register(&mut scene.frames)
-        .unwrap();
+    assert!(
+        register_unposed(&mut scene).unwrap().is_empty(),
+        "posed input is left alone"
+    );
+    scene.posed = false;
+    let reports = register_unposed(&mut scene).unwrap();
+    assert!(scene.posed);
     assert_eq!(reports.len(), 10);
     for k in 1..10 {
         let est = scene.frames[k - 1].camera.world_from_camera.inverse()
@@ -107,14 +140,13 @@ fn partly_posed_input_is_refused() {
 /// within 2 cm of a ground-truth point no view sees, and none where a view sees free space.
 #[test]
 fn plane_fill_lands_on_hidden_ground_truth() {
-    use deocc_pipeline::input::SceneInput;
-    use deocc_pipeline::planes::{complete_planes, PlaneOptions, PLANE_FILL};
+    use deocc_pipeline::planes::{complete_planes, PlaneOptions};
     let cfg = SceneConfig {
         gt_points_per_m2: 10_000.0,
         ..config()
     };
     let rendered = render_full_scene(&cfg, 5).unwrap();
-    let scene = SceneInput::from_rendered(&rendered);
+    let scene = rendered.scene_input();
     let fill = complete_planes(&scene, &PlaneOptions::default());
     assert!(fill.len() > 500, "only {} points filled", fill.len());
     assert!(fill
@@ -122,7 +154,7 @@ fn plane_fill_lands_on_hidden_ground_truth() {
         .as_deref()
         .unwrap()
         .iter()
-        .all(|&g| g == PLANE_FILL));
+        .all(|&g| g == Provenance::PlaneFill.code()));
     let gt = &rendered.ground_truth;
     let hidden: Vec<_> = gt
         .cloud
@@ -153,55 +185,186 @@ fn plane_fill_lands_on_hidden_ground_truth() {
     );
 }
 
-/// The merge stage of the default segmenter: a table's legs join its top (they meet it at concave
-/// creases, hidden under it), which the region growing alone leaves apart.
-#[test]
-fn segmenter_merge_stage_keeps_a_table_whole() {
-    use deocc_pipeline::segment::{matched_ious, ConvexitySegmenter, Segmenter};
-    use deocc_synth::shapes::Category;
+/// A completer with no weights: every crop candidate pixel joins the object at the object's median
+/// visible depth, in one colour; it declines crops wider than `max_width_m`.
+struct Stub {
+    max_width_m: f32,
+}
+
+const STUB_COLOUR: [u8; 3] = [1, 2, 3];
+
+impl Completer for Stub {
+    fn name(&self) -> &str {
+        "stub"
+    }
+    fn provenance(&self) -> Provenance {
+        Provenance::Model
+    }
+    fn resolution(&self) -> usize {
+        32
+    }
+    fn decline(&self, c: &CropCondition) -> Option<String> {
+        let w = c.crop_width_m?;
+        (w > self.max_width_m).then(|| format!("{w:.2} m wide"))
+    }
+    fn complete(
+        &self,
+        batch: &[CropRequest<'_>],
+        _: &CompletionOptions,
+    ) -> Result<Vec<CropCompletion>, CompletionError> {
+        Ok(batch
+            .iter()
+            .map(|req| {
+                let c = req.condition;
+                let n = c.pixels();
+                let amodal: Vec<bool> = (0..n).map(|p| c.visible[p] || c.prior[p]).collect();
+                CropCompletion {
+                    mask_probability: amodal.iter().map(|&a| a as u8 as f32).collect(),
+                    rgb: (0..n).flat_map(|_| STUB_COLOUR).collect(),
+                    depth: c.visible_depth.clone(),
+                    back_depth: c.visible_depth.iter().map(|d| d + 0.3).collect(),
+                    amodal,
+                }
+            })
+            .collect())
+    }
+}
+
+fn small_scene() -> deocc_synth::dataset::RenderedScene {
     let cfg = SceneConfig {
-        width: 640,
-        height: 480,
-        views: 3,
-        tabletop_objects_min: 1,
-        tabletop_objects_max: 2,
-        chairs_max: 0,
-        shelf_probability: 0.0,
+        views: 4,
         gt_points_per_m2: 10.0,
         ..SceneConfig::default()
     };
-    let rendered = render_full_scene(&cfg, 21).unwrap();
-    let table = rendered
-        .scene
-        .objects
-        .iter()
-        .find(|o| o.category == Category::Table)
-        .unwrap()
-        .instance_id;
-    let seg = ConvexitySegmenter::default();
-    let mut no_merge = seg.clone();
-    no_merge.max_object_extent_m = 0.0; // no merging at all
-    let (mut with, mut without) = (0.0, 0.0);
-    for view in &rendered.views {
-        let truth = deocc_io::images::InstanceMap {
-            width: view.frame.width,
-            height: view.frame.height,
-            ids: view.frame.instance.clone(),
-        };
-        let iou_of = |s: &ConvexitySegmenter| {
-            matched_ious(&s.segment(&view.depth, &view.camera), &truth, 50, &[])
-                .into_iter()
-                .find(|&(t, _)| t == table)
-                .map(|(_, iou)| iou)
-                .unwrap()
-        };
-        with += iou_of(&seg) / rendered.views.len() as f64;
-        without += iou_of(&no_merge) / rendered.views.len() as f64;
+    render_full_scene(&cfg, 3).unwrap()
+}
+
+/// `pipeline::run` with a completer that needs no weights: every generated object point carries
+/// the completer's provenance, colour and the instance of its crop, and the report says so.
+#[test]
+fn run_completes_with_a_stub_completer() {
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let chain = CompleterChain::single(Stub { max_width_m: 100.0 });
+    let opts = PipelineOptions {
+        complete_planes: false,
+        ..Default::default()
+    };
+    let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
+    let r = &out.report;
+    assert_eq!(r.completers, "stub");
+    assert!(!r.instances.is_empty());
+    assert!(r.points_model > 0, "{r:?}");
+    assert_eq!(r.points_model, r.points_generated);
+    assert_eq!(r.points_rules + r.points_plane_fill, 0);
+    let gen = out.completed.generated.as_deref().unwrap();
+    let ids = out.completed.instance.as_deref().unwrap();
+    let colours = out.completed.colors.as_deref().unwrap();
+    let completed_ids: Vec<u32> = r.instances.iter().map(|i| i.instance_id as u32).collect();
+    for i in (0..out.completed.len()).filter(|&i| gen[i] != 0) {
+        assert_eq!(gen[i], Provenance::Model.code());
+        assert!(
+            completed_ids.contains(&ids[i]),
+            "point of instance {}",
+            ids[i]
+        );
+        // Near side in the stub's colour, far side shaded at 0.75 of it.
+        let c = colours[i];
+        assert!(c == STUB_COLOUR || c == [0, 1, 2], "colour {c:?}");
     }
-    // Measured: 0.85 against 0.71.
-    assert!(with > 0.8, "table IoU {with:.3} with the merge stage");
+    assert!(r.completions.iter().all(|c| c.completer == "stub"));
+    // The observed part is the reconstruction, untouched.
+    assert_eq!(gen.iter().filter(|&&g| g == 0).count(), out.observed.len());
+}
+
+/// Crops a completer declines go to the next one in the chain; crops every completer declines are
+/// reported as declined.
+#[test]
+fn declined_crops_go_to_the_rules_completer() {
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let opts = PipelineOptions {
+        complete_planes: false,
+        ..Default::default()
+    };
+    let chain = CompleterChain::single(Stub { max_width_m: 0.0 }).then(RulesCompleter::default());
+    let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
+    let r = &out.report;
+    assert_eq!(r.completers, "stub,rules");
+    assert_eq!(r.points_model, 0);
+    assert!(r.points_rules > 0);
+    assert!(r.completions.iter().all(|c| c.completer == "rules"));
+    assert_eq!(r.crops_declined, 0);
+    let only_stub = CompleterChain::single(Stub { max_width_m: 0.0 });
+    let out = deocc_pipeline::run(&scene, &only_stub, &opts, &Vec::new()).unwrap();
+    assert_eq!(out.report.points_generated, 0);
+    assert!(out.report.crops_declined > 0);
+    assert!(out
+        .report
+        .completions
+        .iter()
+        .all(|c| !c.accepted && c.reason.starts_with("declined")));
+}
+
+/// With some frames carrying instance maps and others segmented, the segmented instances get ids
+/// that no given instance has.
+#[test]
+fn mixed_instance_input_gets_distinct_ids() {
+    use deocc_pipeline::instances::ensure_instances;
+    use deocc_pipeline::segment::ConvexitySegmenter;
+    let rendered = small_scene();
+    let mut scene = rendered.scene_input();
+    let given: std::collections::BTreeSet<u16> = scene.frames[1..]
+        .iter()
+        .flat_map(|f| f.instances.as_ref().unwrap().ids.iter().copied())
+        .filter(|&id| id != 0)
+        .collect();
+    scene.frames[0].instances = None;
+    let made = ensure_instances(&mut scene, &ConvexitySegmenter::default()).unwrap();
+    assert!(made > 0);
+    let segmented: std::collections::BTreeSet<u16> = scene.frames[0]
+        .instances
+        .as_ref()
+        .unwrap()
+        .ids
+        .iter()
+        .copied()
+        .filter(|&id| id != 0)
+        .collect();
+    assert!(!segmented.is_empty());
     assert!(
-        with > without + 0.1,
-        "merge {with:.3} vs no merge {without:.3}"
+        segmented.is_disjoint(&given),
+        "segmented {segmented:?} collide with given {given:?}"
     );
+    // The given maps are untouched.
+    for (f, v) in scene.frames[1..].iter().zip(&rendered.views[1..]) {
+        assert_eq!(f.instances.as_ref().unwrap().ids, v.frame.instance);
+    }
+}
+
+/// Options read from JSON: missing fields default, unknown fields and bad values are refused with
+/// the file and the field named.
+#[test]
+fn options_from_json_are_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("options.json");
+    std::fs::write(&path, r#"{"steps": 8, "rho": 0.25}"#).unwrap();
+    let o = PipelineOptions::from_json_file(&path).unwrap();
+    assert_eq!((o.steps, o.rho), (8, 0.25));
+    assert_eq!(o.batch, PipelineOptions::default().batch);
+    for (text, field) in [
+        (r#"{"stpes": 8}"#, "stpes"),
+        (r#"{"steps": 0}"#, "steps"),
+        (r#"{"rho": 1e30}"#, "rho"),
+        (r#"{"fusion_voxel_m": -1}"#, "fusion_voxel_m"),
+    ] {
+        std::fs::write(&path, text).unwrap();
+        let e = PipelineOptions::from_json_file(&path)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("options.json") && e.contains(field),
+            "{text}: {e}"
+        );
+    }
 }

@@ -10,7 +10,9 @@
 //!   amodal/000000/0007.png  8-bit amodal mask of instance 7 in view 0 (objects in view only)
 //!   ground_truth.ply      dense surface samples: x y z nx ny nz instance seen
 //! ```
-//! `deocc run` reads the same layout (rgb/, depth/, cameras.json, optional instances/).
+//! The frame files, cameras.json and the fields of scene.json that deocc reads are the scene-folder
+//! format of [`deocc_io::scene`], which `deocc run` reads; `amodal/` and the rest of scene.json are
+//! the benchmark's ground truth.
 
 use std::path::{Path, PathBuf};
 
@@ -21,6 +23,7 @@ use deocc_io::images::{
     write_depth_png, write_instance_png, write_mask_png, write_rgb_png, InstanceMap,
 };
 use deocc_io::ply::write_point_cloud_with_extras;
+use deocc_io::scene::{frame_paths, Frame as SceneFrame, SceneInput};
 use deocc_io::PlyEncoding;
 use image::RgbImage;
 use rayon::prelude::*;
@@ -229,6 +232,52 @@ pub struct RenderedScene {
     pub ground_truth: GroundTruth,
 }
 
+impl RenderedScene {
+    /// The scene as pipeline input, without a round trip through files: depth is quantised to
+    /// millimetres as the PNG files store it, so results match `deocc run` on the written scene.
+    pub fn scene_input(&self) -> SceneInput {
+        let rendered = self;
+        let frames = rendered
+            .views
+            .iter()
+            .enumerate()
+            .map(|(v, view)| {
+                let mm: Vec<f32> = view
+                    .depth
+                    .data()
+                    .iter()
+                    .map(|&d| {
+                        let q = (d * 1000.0).round();
+                        if q > 0.0 && q <= 65535.0 {
+                            q / 1000.0
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
+                let (w, h) = (view.frame.width, view.frame.height);
+                SceneFrame {
+                    name: format!("{v:06}"),
+                    camera: view.camera,
+                    rgb: view.rgb.clone(),
+                    depth: DepthMap::new(w, h, mm).unwrap_or_else(|_| DepthMap::zeros(w, h)),
+                    instances: Some(InstanceMap {
+                        width: w,
+                        height: h,
+                        ids: view.frame.instance.clone(),
+                    }),
+                }
+            })
+            .collect();
+        SceneInput {
+            dir: format!("<scene seed {}>", rendered.scene.seed).into(),
+            frames,
+            structure_ids: rendered.scene.structure_ids(),
+            posed: true,
+        }
+    }
+}
+
 pub fn render_full_scene(config: &SceneConfig, seed: u64) -> Result<RenderedScene> {
     let scene = generate_scene(config, seed)?;
     let tris = SceneTriangles::new(&scene);
@@ -270,14 +319,15 @@ pub fn write_scene(
                 .enumerate()
                 .try_for_each(|(v, view)| -> Result<()> {
                     let name = frame_name(v);
-                    write_rgb_png(&dir.join("rgb").join(format!("{name}.png")), &view.rgb)?;
-                    write_depth_png(&dir.join("depth").join(format!("{name}.png")), &view.depth)?;
+                    let [rgb_path, depth_path, inst_path] = frame_paths(dir, &name);
+                    write_rgb_png(&rgb_path, &view.rgb)?;
+                    write_depth_png(&depth_path, &view.depth)?;
                     let inst = InstanceMap {
                         width: view.frame.width,
                         height: view.frame.height,
                         ids: view.frame.instance.clone(),
                     };
-                    write_instance_png(&dir.join("instances").join(format!("{name}.png")), &inst)?;
+                    write_instance_png(&inst_path, &inst)?;
                     let adir = dir.join("amodal").join(&name);
                     std::fs::create_dir_all(&adir).map_err(|e| deocc_io::IoError::new(&adir, e))?;
                     let (w, h) = (view.frame.width, view.frame.height);

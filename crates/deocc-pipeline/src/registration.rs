@@ -1,30 +1,32 @@
-//! Where the frames' poses come from: given with the input (the default), or registered from the
-//! depth alone by frame-to-frame point-to-plane ICP, for a hand-held or robot RGB-D stream that
-//! has no poses. RGB-only input would need depth from a model; [`DepthEstimator`] is the seam for
-//! one (Depth Anything and the like, with user-supplied weights), none ships yet.
+//! Stage: registration. The frames' poses are given with the input (the default), or registered
+//! from the depth alone by frame-to-frame point-to-plane ICP ([`register_unposed`]), for a
+//! hand-held or robot RGB-D stream that has no poses.
 
 use deocc_geometry::align::{icp, IcpMethod, IcpOptions, IcpTarget};
-use deocc_geometry::camera::{Camera, Intrinsics};
+use deocc_geometry::camera::Camera;
 use deocc_geometry::depth::backproject;
 use deocc_geometry::normals::{estimate_normals, orient_towards};
 use deocc_geometry::voxel::voxel_downsample;
-use deocc_geometry::DepthMap;
-use image::RgbImage;
+use deocc_io::scene::{Frame, SceneInput};
 use nalgebra::{Isometry3, Point3, Rotation3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
-use crate::input::Frame;
 use crate::PipelineError;
 
-/// Depth from RGB for input without a depth sensor (a monocular or multi-view model loading
-/// weights from a path the user gives). Implementations plug in here; the pipeline only needs
-/// metric depth per frame.
-pub trait DepthEstimator: Send + Sync {
-    fn estimate(&self, rgb: &RgbImage, intrinsics: &Intrinsics) -> Result<DepthMap, PipelineError>;
+/// Registers a scene read without poses (`cameras.json` gave none) with the default
+/// [`FrameToFrameIcp`], in file order, and marks it posed; returns each frame's figures. A posed
+/// scene is left as it is (an empty list).
+pub fn register_unposed(scene: &mut SceneInput) -> Result<Vec<FrameRegistration>, PipelineError> {
+    if scene.posed {
+        return Ok(Vec::new());
+    }
+    let reports = FrameToFrameIcp::default().register(&mut scene.frames)?;
+    scene.posed = true;
+    Ok(reports)
 }
 
 /// How one frame was registered.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FrameRegistration {
     pub frame: String,
     /// Fraction of the frame's points with a partner in the previous frame at the finest level.

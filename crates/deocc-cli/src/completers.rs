@@ -1,0 +1,55 @@
+//! Which completers a command uses: `--completer gldot|rules|gldot,rules` and `--weights`. The
+//! shipped GL-DoT weights are built into the binary, so `deocc` works from any folder; `--weights
+//! DIR` loads another model.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use deocc_completion::rules::RulesCompleter;
+use deocc_completion::{Completer, CompleterChain};
+use deocc_model::GlDotCompleter;
+
+/// The shipped model (weights/gldot-small), built in.
+const BUILTIN_TRAIN_JSON: &str = include_str!("../../../weights/gldot-small/train.json");
+const BUILTIN_WEIGHTS: &[u8] = include_bytes!("../../../weights/gldot-small/ema.safetensors");
+
+#[derive(Args, Clone, Debug)]
+pub struct CompleterArgs {
+    /// Completers tried in order, comma-separated: each crop goes to the first that takes it
+    /// (GL-DoT declines crops wider than 0.6 m). `gldot` (the learned model), `rules` (geometric
+    /// prior, nearest colour, plane and symmetric depth).
+    #[arg(long, default_value = "gldot", value_delimiter = ',')]
+    pub completer: Vec<String>,
+    /// GL-DoT model folder (train.json + ema.safetensors or model.safetensors). Default: the
+    /// shipped model built into this binary.
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+}
+
+/// Loads GL-DoT from `weights`, or the built-in model.
+pub fn load_gldot(weights: Option<&Path>) -> Result<GlDotCompleter> {
+    let device = candle_core::Device::Cpu;
+    match weights {
+        Some(dir) => GlDotCompleter::from_dir(dir, &device)
+            .with_context(|| format!("loading the model from {}", dir.display())),
+        None => GlDotCompleter::from_bytes(BUILTIN_TRAIN_JSON, BUILTIN_WEIGHTS, &device)
+            .context("loading the built-in model"),
+    }
+}
+
+/// The chain named by `--completer`.
+pub fn chain(a: &CompleterArgs) -> Result<CompleterChain> {
+    if a.completer.is_empty() {
+        bail!("--completer needs at least one of: gldot, rules");
+    }
+    let mut links: Vec<Box<dyn Completer>> = Vec::new();
+    for name in &a.completer {
+        match name.trim() {
+            "gldot" => links.push(Box::new(load_gldot(a.weights.as_deref())?)),
+            "rules" => links.push(Box::new(RulesCompleter::default())),
+            other => bail!("--completer: unknown completer '{other}' (known: gldot, rules)"),
+        }
+    }
+    Ok(CompleterChain::new(links))
+}

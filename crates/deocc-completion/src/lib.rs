@@ -1,0 +1,136 @@
+//! # deocc-completion
+//!
+//! The seam between the pipeline and whatever completes an occluded object. The pipeline crops a
+//! view around an object's visible mask ([`CropCondition`]: colour, visible mask, relative depth
+//! of the object and of the scene, the geometric prior), hands batches of crops to a
+//! [`Completer`], and fuses the [`CropCompletion`]s it returns (amodal mask with a probability,
+//! colour, near and far depth) back into the cloud.
+//!
+//! Two completers ship:
+//! - [`rules::RulesCompleter`], here: the geometric prior, the nearest visible colour, a plane
+//!   through the visible near side and a symmetric far side. No weights, no ML dependency; the
+//!   baseline every model figure is compared with.
+//! - GL-DoT (`deocc_model::GlDotCompleter`), the learned one.
+//!
+//! A completer may decline a crop ([`Completer::decline`], e.g. too wide for its resolution); a
+//! [`CompleterChain`] hands it to the next completer. This crate has no ML dependency: a robot
+//! that runs the rules completer does not build candle.
+//!
+//! ```
+//! use deocc_completion::{Completer, CompletionOptions, CropCondition, CropRequest};
+//! use deocc_completion::rules::RulesCompleter;
+//!
+//! // An 8x8 crop whose left half shows the object and whose right half an occluder in front.
+//! let r = 8;
+//! let visible: Vec<bool> = (0..r * r).map(|p| p % r < 4).collect();
+//! let scene: Vec<f32> = (0..r * r).map(|p| if p % r < 4 { 0.0 } else { -0.3 }).collect();
+//! let crop = CropCondition::new(r, vec![200; r * r * 3], visible, vec![0.0; r * r], scene, None);
+//! let out = RulesCompleter { resolution: r, ..Default::default() }
+//!     .complete(&[CropRequest { condition: &crop, other_views: &[] }], &CompletionOptions::default())
+//!     .unwrap();
+//! assert!(out[0].amodal.iter().zip(&crop.visible).all(|(&a, &v)| a || !v));
+//! ```
+
+pub mod crop;
+pub mod priors;
+pub mod rules;
+
+pub use crop::{CompletionOptions, CropCompletion, CropCondition, CropRequest};
+pub use deocc_geometry::Provenance;
+pub use priors::MaskPrior;
+
+/// Why a completer could not complete a batch.
+#[derive(Debug, thiserror::Error)]
+pub enum CompletionError {
+    /// The crops do not fit the completer (resolution, channels).
+    #[error("{completer}: {msg}")]
+    Input { completer: String, msg: String },
+    /// The completer failed (a numerical error, a device error).
+    #[error("{completer}: {msg}")]
+    Failed { completer: String, msg: String },
+}
+
+/// Completes crops of occluded objects. Implementations are cheap to share across threads.
+pub trait Completer: Send + Sync {
+    /// A short name for reports and the command line (`gldot`, `rules`).
+    fn name(&self) -> &str;
+    /// The provenance of the points generated from its completions.
+    fn provenance(&self) -> Provenance;
+    /// The crop side it wants, in pixels.
+    fn resolution(&self) -> usize;
+    /// `Some(reason)` when it will not complete this crop, which then goes to the next completer
+    /// of a chain.
+    fn decline(&self, _condition: &CropCondition) -> Option<String> {
+        None
+    }
+    /// Completes a batch of crops at [`Completer::resolution`], one completion per request, in
+    /// order. Deterministic for given options.
+    fn complete(
+        &self,
+        batch: &[CropRequest<'_>],
+        opts: &CompletionOptions,
+    ) -> Result<Vec<CropCompletion>, CompletionError>;
+}
+
+/// Completers tried in order: each crop goes to the first that does not decline it.
+#[derive(Default)]
+pub struct CompleterChain {
+    links: Vec<Box<dyn Completer>>,
+}
+
+impl CompleterChain {
+    pub fn new(links: Vec<Box<dyn Completer>>) -> Self {
+        Self { links }
+    }
+
+    pub fn single(completer: impl Completer + 'static) -> Self {
+        Self::new(vec![Box::new(completer)])
+    }
+
+    /// Appends a completer that takes what the others decline.
+    pub fn then(mut self, completer: impl Completer + 'static) -> Self {
+        self.links.push(Box::new(completer));
+        self
+    }
+
+    pub fn links(&self) -> &[Box<dyn Completer>] {
+        &self.links
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.links.is_empty()
+    }
+
+    /// `gldot,rules`: the names in order.
+    pub fn describe(&self) -> String {
+        self.links
+            .iter()
+            .map(|c| c.name())
+            .collect::<Vec<_>>()
+            .join(",")
+    }
+
+    /// The first link that takes the crop built by `crop_at(resolution)` (`None` when it cannot
+    /// be built at that resolution), or every link's reason for declining.
+    pub fn route(
+        &self,
+        mut crop_at: impl FnMut(usize) -> Option<CropCondition>,
+    ) -> Result<(usize, CropCondition), Vec<String>> {
+        let mut reasons = Vec::new();
+        for (k, link) in self.links.iter().enumerate() {
+            let Some(crop) = crop_at(link.resolution()) else {
+                reasons.push(format!(
+                    "{}: no crop at {} px",
+                    link.name(),
+                    link.resolution()
+                ));
+                continue;
+            };
+            match link.decline(&crop) {
+                None => return Ok((k, crop)),
+                Some(why) => reasons.push(format!("{}: {why}", link.name())),
+            }
+        }
+        Err(reasons)
+    }
+}

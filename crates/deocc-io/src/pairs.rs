@@ -1,0 +1,236 @@
+//! GL-DoT training pairs on disk: one safetensors shard holds N crops at resolution R, one
+//! tensor per field (`crop_rgb` (N, R, R, 3) u8, `visible_mask` (N, R, R) u8, `visible_depth`,
+//! `scene_depth`, `whole_depth`, `whole_back_depth` (N, R, R) f32, `whole_rgb`, `amodal_mask`,
+//! `group` (N) u32, `category` and `held_out` (N) u8, `occlusion` (N) f32). The renderer writes
+//! them (`deocc synth pairs`); the model reads them. Depth is relative to the object's median
+//! visible depth, in crop widths (see `deocc_completion::crop`).
+
+use std::path::Path;
+
+use safetensors::tensor::{Dtype, TensorView};
+
+use crate::error::{IoError, Result};
+
+/// A struct of arrays holding N pairs at resolution R (row-major, channels last).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PairSet {
+    pub resolution: u32,
+    pub crop_rgb: Vec<u8>,       // (N, R, R, 3)
+    pub visible_mask: Vec<u8>,   // (N, R, R) 0/1
+    pub visible_depth: Vec<f32>, // (N, R, R)
+    pub scene_depth: Vec<f32>,   // (N, R, R)
+    pub whole_rgb: Vec<u8>,      // (N, R, R, 3)
+    pub amodal_mask: Vec<u8>,    // (N, R, R) 0/1
+    pub whole_depth: Vec<f32>,   // (N, R, R)
+    /// Depth of the object's far side (its back surface) per pixel: what no view of it shows.
+    pub whole_back_depth: Vec<f32>, // (N, R, R)
+    pub group: Vec<u32>,         // object identity across views
+    pub category: Vec<u8>,       // Category as u8 (declaration order)
+    pub held_out: Vec<u8>,
+    pub occlusion: Vec<f32>, // 1 - visible / amodal, in the crop
+}
+
+impl PairSet {
+    pub fn len(&self) -> usize {
+        self.group.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.group.is_empty()
+    }
+    pub fn pixels(&self) -> usize {
+        (self.resolution * self.resolution) as usize
+    }
+    /// Keeps the first `n` pairs.
+    pub fn truncate(&mut self, n: usize) {
+        let n = n.min(self.len());
+        let px = self.pixels();
+        self.crop_rgb.truncate(n * px * 3);
+        self.whole_rgb.truncate(n * px * 3);
+        self.visible_mask.truncate(n * px);
+        self.amodal_mask.truncate(n * px);
+        self.visible_depth.truncate(n * px);
+        self.scene_depth.truncate(n * px);
+        self.whole_depth.truncate(n * px);
+        self.whole_back_depth.truncate(n * px);
+        self.group.truncate(n);
+        self.category.truncate(n);
+        self.held_out.truncate(n);
+        self.occlusion.truncate(n);
+    }
+
+    pub fn extend(&mut self, o: &PairSet) {
+        self.resolution = o.resolution;
+        self.crop_rgb.extend_from_slice(&o.crop_rgb);
+        self.visible_mask.extend_from_slice(&o.visible_mask);
+        self.visible_depth.extend_from_slice(&o.visible_depth);
+        self.scene_depth.extend_from_slice(&o.scene_depth);
+        self.whole_rgb.extend_from_slice(&o.whole_rgb);
+        self.amodal_mask.extend_from_slice(&o.amodal_mask);
+        self.whole_depth.extend_from_slice(&o.whole_depth);
+        self.whole_back_depth.extend_from_slice(&o.whole_back_depth);
+        self.group.extend_from_slice(&o.group);
+        self.category.extend_from_slice(&o.category);
+        self.held_out.extend_from_slice(&o.held_out);
+        self.occlusion.extend_from_slice(&o.occlusion);
+    }
+}
+
+fn bytes_of_f32(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+fn bytes_of_u32(v: &[u32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Saves pairs as safetensors (tensors named like the fields; shapes (N, R, R[, 3])).
+pub fn save_pairs(path: &Path, set: &PairSet) -> Result<()> {
+    let (n, r) = (set.len(), set.resolution as usize);
+    let f = [
+        (
+            "crop_rgb",
+            Dtype::U8,
+            vec![n, r, r, 3],
+            set.crop_rgb.clone(),
+        ),
+        (
+            "visible_mask",
+            Dtype::U8,
+            vec![n, r, r],
+            set.visible_mask.clone(),
+        ),
+        (
+            "visible_depth",
+            Dtype::F32,
+            vec![n, r, r],
+            bytes_of_f32(&set.visible_depth),
+        ),
+        (
+            "scene_depth",
+            Dtype::F32,
+            vec![n, r, r],
+            bytes_of_f32(&set.scene_depth),
+        ),
+        (
+            "whole_rgb",
+            Dtype::U8,
+            vec![n, r, r, 3],
+            set.whole_rgb.clone(),
+        ),
+        (
+            "amodal_mask",
+            Dtype::U8,
+            vec![n, r, r],
+            set.amodal_mask.clone(),
+        ),
+        (
+            "whole_depth",
+            Dtype::F32,
+            vec![n, r, r],
+            bytes_of_f32(&set.whole_depth),
+        ),
+        (
+            "whole_back_depth",
+            Dtype::F32,
+            vec![n, r, r],
+            bytes_of_f32(&set.whole_back_depth),
+        ),
+        ("group", Dtype::U32, vec![n], bytes_of_u32(&set.group)),
+        ("category", Dtype::U8, vec![n], set.category.clone()),
+        ("held_out", Dtype::U8, vec![n], set.held_out.clone()),
+        (
+            "occlusion",
+            Dtype::F32,
+            vec![n],
+            bytes_of_f32(&set.occlusion),
+        ),
+    ];
+    let views: Vec<(&str, TensorView)> = f
+        .iter()
+        .map(|(name, dt, shape, data)| {
+            TensorView::new(*dt, shape.clone(), data).map(|v| (*name, v))
+        })
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| IoError::invalid(path, e.to_string()))?;
+    let bytes =
+        safetensors::serialize(views, None).map_err(|e| IoError::invalid(path, e.to_string()))?;
+    crate::atomic::write_bytes_atomic(path, &bytes)
+}
+
+/// Loads pairs saved by [`save_pairs`], checking every tensor's type and shape.
+pub fn load_pairs(path: &Path) -> Result<PairSet> {
+    let err = |msg: String| IoError::invalid(path, msg);
+    let bytes = std::fs::read(path).map_err(|e| IoError::new(path, e))?;
+    let st = safetensors::SafeTensors::deserialize(&bytes)
+        .map_err(|e| err(format!("not a safetensors file: {e}")))?;
+    let get = |name: &str, dt: Dtype| -> Result<(Vec<usize>, &[u8])> {
+        let t = st
+            .tensor(name)
+            .map_err(|_| err(format!("missing tensor '{name}'")))?;
+        if t.dtype() != dt {
+            return Err(err(format!(
+                "tensor '{name}' is {:?}, expected {dt:?}",
+                t.dtype()
+            )));
+        }
+        Ok((t.shape().to_vec(), t.data()))
+    };
+    let f32s = |b: &[u8]| {
+        b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect::<Vec<f32>>()
+    };
+    let (shape, crop_rgb) = get("crop_rgb", Dtype::U8)?;
+    let [n, r, r2, 3] = shape[..] else {
+        return Err(err(format!(
+            "crop_rgb has shape {shape:?}, expected (N, R, R, 3)"
+        )));
+    };
+    if r != r2 {
+        return Err(err("crops are not square".into()));
+    }
+    let set = PairSet {
+        resolution: r as u32,
+        crop_rgb: crop_rgb.to_vec(),
+        visible_mask: get("visible_mask", Dtype::U8)?.1.to_vec(),
+        visible_depth: f32s(get("visible_depth", Dtype::F32)?.1),
+        scene_depth: f32s(
+            get("scene_depth", Dtype::F32)
+                .map_err(|_| {
+                    err(
+                        "missing tensor 'scene_depth': pairs from before it was added; \
+                         make them again with `deocc synth pairs`"
+                            .into(),
+                    )
+                })?
+                .1,
+        ),
+        whole_rgb: get("whole_rgb", Dtype::U8)?.1.to_vec(),
+        amodal_mask: get("amodal_mask", Dtype::U8)?.1.to_vec(),
+        whole_depth: f32s(get("whole_depth", Dtype::F32)?.1),
+        whole_back_depth: f32s(get("whole_back_depth", Dtype::F32)?.1),
+        group: get("group", Dtype::U32)?
+            .1
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
+        category: get("category", Dtype::U8)?.1.to_vec(),
+        held_out: get("held_out", Dtype::U8)?.1.to_vec(),
+        occlusion: f32s(get("occlusion", Dtype::F32)?.1),
+    };
+    let px = r * r;
+    let ok = set.visible_mask.len() == n * px
+        && set.amodal_mask.len() == n * px
+        && set.whole_rgb.len() == n * px * 3
+        && set.visible_depth.len() == n * px
+        && set.scene_depth.len() == n * px
+        && set.whole_depth.len() == n * px
+        && set.whole_back_depth.len() == n * px
+        && set.group.len() == n
+        && set.category.len() == n
+        && set.held_out.len() == n
+        && set.occlusion.len() == n;
+    if !ok {
+        return Err(err("tensor sizes disagree with the number of pairs".into()));
+    }
+    Ok(set)
+}

@@ -1,0 +1,128 @@
+//! Crops: a square window of a view around an instance's visible box, resampled to the
+//! completer's resolution, as the [`CropCondition`] a completer reads and the [`CropWindow`] that
+//! maps its pixels back to the image.
+
+use deocc_completion::CropCondition;
+use deocc_io::scene::Frame;
+
+use crate::stats::InstanceStats;
+
+/// Crop side = visible box side * this (the middle of the training range [1.4, 2.2)).
+pub const CROP_SCALE: f32 = 1.8;
+
+/// Fewest crop pixels with depth an instance needs to be completed.
+pub const MIN_CROP_VISIBLE_PX: usize = 8;
+
+/// Where a crop lies in its view, and what the sensor measured there.
+#[derive(Debug, Clone)]
+pub struct CropWindow {
+    pub instance_id: u16,
+    pub view: usize,
+    /// Top-left corner and side of the window, image pixels.
+    pub x0: f32,
+    pub y0: f32,
+    pub side: f32,
+    pub resolution: usize,
+    /// Observed metric depth per crop pixel (0 = none or outside the image).
+    pub observed_depth_m: Vec<f32>,
+    /// Crop pixel -> image pixel index (`None` outside the image).
+    pub source_pixel: Vec<Option<usize>>,
+    /// Metres per unit of relative depth: the crop's width at the object's median visible depth.
+    pub metric_scale_m: f32,
+}
+
+impl CropWindow {
+    /// Image coordinates of crop pixel `k`'s centre.
+    pub fn pixel_centre(&self, k: usize) -> (f32, f32) {
+        let r = self.resolution;
+        (
+            self.x0 + ((k % r) as f32 + 0.5) * self.side / r as f32,
+            self.y0 + ((k / r) as f32 + 0.5) * self.side / r as f32,
+        )
+    }
+}
+
+/// The crop of instance `id` in `frame` at `resolution`, or `None` if it has fewer than
+/// [`MIN_CROP_VISIBLE_PX`] visible pixels with depth there.
+pub fn make_crop(
+    frame: &Frame,
+    view: usize,
+    id: u16,
+    stats: &InstanceStats,
+    resolution: usize,
+) -> Option<(CropWindow, CropCondition)> {
+    let inst = frame.instances.as_ref()?;
+    let (w, h) = (inst.width as usize, inst.height as usize);
+    let b = stats.bbox;
+    let vis_side = ((b[2] - b[0]).max(b[3] - b[1])) as f32;
+    let side = (vis_side * CROP_SCALE).max(24.0);
+    let (cx, cy) = ((b[0] + b[2]) as f32 / 2.0, (b[1] + b[3]) as f32 / 2.0);
+    let (x0, y0) = (cx - side / 2.0, cy - side / 2.0);
+    let r = resolution;
+    let n = r * r;
+    let depth = frame.depth.data();
+    let mut source_pixel = vec![None; n];
+    let mut visible = vec![false; n];
+    let mut observed = vec![0f32; n];
+    for (k, src) in source_pixel.iter_mut().enumerate() {
+        let x = x0 + ((k % r) as f32 + 0.5) * side / r as f32;
+        let y = y0 + ((k / r) as f32 + 0.5) * side / r as f32;
+        if x < 0.0 || y < 0.0 || x >= w as f32 || y >= h as f32 {
+            continue;
+        }
+        let i = y as usize * w + x as usize;
+        *src = Some(i);
+        visible[k] = inst.ids[i] == id && depth[i] > 0.0;
+        observed[k] = depth[i];
+    }
+    let mut vis_depths: Vec<f32> = (0..n)
+        .filter(|&k| visible[k])
+        .map(|k| observed[k])
+        .collect();
+    if vis_depths.len() < MIN_CROP_VISIBLE_PX {
+        return None;
+    }
+    let mid = vis_depths.len() / 2;
+    vis_depths.select_nth_unstable_by(mid, f32::total_cmp);
+    let m = vis_depths[mid];
+    let scale_m = side * m / frame.camera.intrinsics.fx();
+    let scene_rel: Vec<f32> = (0..n)
+        .map(|k| {
+            if observed[k] > 0.0 {
+                ((observed[k] - m) / scale_m).clamp(-1.0, 1.0)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let visible_rel: Vec<f32> = (0..n)
+        .map(|k| {
+            if visible[k] {
+                (observed[k] - m) / scale_m
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let px = frame.rgb.as_raw();
+    let rgb: Vec<u8> = source_pixel
+        .iter()
+        .flat_map(|src| match src {
+            Some(i) => [px[3 * i], px[3 * i + 1], px[3 * i + 2]],
+            None => [0; 3],
+        })
+        .collect();
+    let condition = CropCondition::new(r, rgb, visible, visible_rel, scene_rel, Some(scale_m));
+    let window = CropWindow {
+        instance_id: id,
+        view,
+        x0,
+        y0,
+        side,
+        resolution: r,
+        observed_depth_m: observed,
+        source_pixel,
+        metric_scale_m: scale_m,
+    };
+    Some((window, condition))
+}

@@ -1,0 +1,115 @@
+//! What a run may be told: every field has a default, a JSON file may set any of them
+//! (`deocc run --options FILE`), unknown fields are refused and every value is range-checked.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::PipelineError;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PipelineOptions {
+    /// Denoising steps of a generative completer.
+    pub steps: usize,
+    /// Weight of the other views in cross-view conditioning, in [0, 1] (0 = single view).
+    pub rho: f32,
+    /// A further view of an instance is completed only if it looks at it from at least this many
+    /// degrees away from every view already chosen.
+    pub view_delta_deg: f32,
+    pub max_views_per_instance: usize,
+    /// Voxel of the observed cloud (de-duplicates the views), metres.
+    pub observed_voxel_m: f64,
+    /// Voxel of the fusion of generated points, metres.
+    pub fusion_voxel_m: f64,
+    /// Crops per completer call.
+    pub batch: usize,
+    pub seed: u64,
+    /// Also complete objects no other object hides: their far side is hidden in every view, and
+    /// the completer's far-side depth fills it.
+    pub complete_unoccluded: bool,
+    /// Masks smaller than this (pixels) are not completed.
+    pub min_visible_px: usize,
+    /// Fill the hidden parts of large planes (floor, walls) where the views agree they are
+    /// hidden ([`crate::planes`]).
+    pub complete_planes: bool,
+    /// Keep a generated point only if every view agrees it is hidden ([`crate::carve`]).
+    pub carve_generated: bool,
+}
+
+impl Default for PipelineOptions {
+    fn default() -> Self {
+        Self {
+            steps: 4,
+            rho: 0.5,
+            view_delta_deg: 90.0,
+            max_views_per_instance: 3,
+            observed_voxel_m: 0.005,
+            fusion_voxel_m: 0.01,
+            batch: 8,
+            seed: 0,
+            complete_unoccluded: false,
+            min_visible_px: 200,
+            complete_planes: true,
+            carve_generated: true,
+        }
+    }
+}
+
+fn bad(field: &'static str, msg: impl Into<String>) -> PipelineError {
+    PipelineError::Option {
+        field,
+        msg: msg.into(),
+    }
+}
+
+impl PipelineOptions {
+    /// Reads options from a JSON file: missing fields take their defaults, unknown fields and
+    /// out-of-range values are errors naming the file and the field.
+    pub fn from_json_file(path: &Path) -> Result<Self, PipelineError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| PipelineError::input(path, format!("cannot read: {e}")))?;
+        let opts: Self = serde_json::from_str(&text)
+            .map_err(|e| PipelineError::input(path, format!("pipeline options: {e}")))?;
+        opts.validate()
+            .map_err(|e| PipelineError::input(path, e.to_string()))?;
+        Ok(opts)
+    }
+
+    /// Checks every field's range.
+    pub fn validate(&self) -> Result<(), PipelineError> {
+        if !(1..=1000).contains(&self.steps) {
+            return Err(bad("steps", format!("{} is outside 1..=1000", self.steps)));
+        }
+        if !(0.0..=1.0).contains(&self.rho) {
+            return Err(bad("rho", format!("{} is outside [0, 1]", self.rho)));
+        }
+        if !(0.0..=180.0).contains(&self.view_delta_deg) {
+            return Err(bad(
+                "view_delta_deg",
+                format!("{} is outside [0, 180]", self.view_delta_deg),
+            ));
+        }
+        if !(1..=64).contains(&self.max_views_per_instance) {
+            return Err(bad(
+                "max_views_per_instance",
+                format!("{} is outside 1..=64", self.max_views_per_instance),
+            ));
+        }
+        for (field, v) in [
+            ("observed_voxel_m", self.observed_voxel_m),
+            ("fusion_voxel_m", self.fusion_voxel_m),
+        ] {
+            if !(1e-4..=1.0).contains(&v) {
+                return Err(bad(field, format!("{v} m is outside [0.0001, 1] m")));
+            }
+        }
+        if !(1..=1024).contains(&self.batch) {
+            return Err(bad("batch", format!("{} is outside 1..=1024", self.batch)));
+        }
+        if self.min_visible_px == 0 {
+            return Err(bad("min_visible_px", "must be at least 1"));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,369 @@
+//! Stage: output. A run's output folder, written so that nothing is ever lost or half-written:
+//!
+//! ```text
+//! OUT/
+//!   completed.ply                 x y z, red green blue, instance (u32), generated (u8 provenance)
+//!   observed.ply                  the visible-only cloud
+//!   instances/instance_NNNN.ply   each completed instance, observed and generated points
+//!   report.json                   the run report (+ the evaluation against ground truth, if any)
+//!   render_input_view.png         before / after from the first view, generated points in magenta
+//!   render_novel_view.png         the same from higher up and to the side
+//! ```
+//!
+//! [`Staging`] assembles the folder beside `OUT` (`.OUT.partial-PID`) and swaps it in only when
+//! everything succeeded: the previous output is renamed aside, the new one renamed into place,
+//! the old one removed, so at every instant a complete version exists (a run killed between the
+//! two renames leaves `.OUT.old-PID`, which the next run puts back). A lock file (`.OUT.lock`)
+//! keeps two runs from writing the same `OUT`; staging folders, locks and set-aside outputs of
+//! processes that no longer run are cleaned up by the next run. `OUT` may not be, contain or lie
+//! inside the input folder.
+
+use std::path::{Path, PathBuf};
+
+use deocc_geometry::camera::look_at;
+use deocc_geometry::Camera;
+use deocc_io::ply::write_point_cloud;
+use deocc_io::scene::SceneInput;
+use deocc_io::PlyEncoding;
+use nalgebra::{Point3, Vector3};
+use serde::Serialize;
+
+use crate::render::{side_by_side, splat};
+use crate::{PipelineError, PipelineOutput, RunReport};
+
+/// The file that marks a folder as a deocc run's output (it may then be replaced).
+pub const REPORT_FILE: &str = "report.json";
+
+fn err(path: &Path, msg: impl Into<String>) -> PipelineError {
+    PipelineError::input(path, msg)
+}
+
+/// `path` made absolute without requiring it to exist (its parent must, or be creatable).
+fn absolute(path: &Path) -> Result<PathBuf, PipelineError> {
+    if let Ok(p) = path.canonicalize() {
+        return Ok(p);
+    }
+    let name = path
+        .file_name()
+        .ok_or_else(|| err(path, "not a folder name"))?;
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(|e| {
+        err(
+            &parent,
+            format!("cannot create the output's parent folder: {e}"),
+        )
+    })?;
+    let parent = parent
+        .canonicalize()
+        .map_err(|e| err(&parent, e.to_string()))?;
+    Ok(parent.join(name))
+}
+
+/// Whether process `pid` still runs (Linux: `/proc/PID` exists; elsewhere assumed running).
+fn process_alive(pid: u32) -> bool {
+    if cfg!(target_os = "linux") {
+        Path::new("/proc").join(pid.to_string()).exists()
+    } else {
+        true
+    }
+}
+
+/// An output folder being assembled. Dropped without [`Staging::commit`], it removes its work.
+pub struct Staging {
+    out: PathBuf,
+    dir: PathBuf,
+    lock: PathBuf,
+    committed: bool,
+}
+
+impl Staging {
+    /// Checks where the output goes, takes its lock, cleans up after dead runs, and makes the
+    /// staging folder. `input` is the scene folder read (none for a generated example).
+    pub fn begin(out: &Path, input: Option<&Path>) -> Result<Self, PipelineError> {
+        let out_abs = absolute(out)?;
+        let cwd = std::env::current_dir()
+            .ok()
+            .and_then(|c| c.canonicalize().ok());
+        if cwd.as_deref() == Some(out_abs.as_path()) {
+            return Err(err(
+                out,
+                "is the current folder; name a folder for the output (it is replaced as a whole)",
+            ));
+        }
+        if let Some(input) = input {
+            let input_abs = input
+                .canonicalize()
+                .map_err(|e| err(input, e.to_string()))?;
+            if out_abs == input_abs || out_abs.starts_with(&input_abs) {
+                return Err(err(
+                    out,
+                    format!(
+                        "lies inside the input scene {}; choose a folder outside it",
+                        input.display()
+                    ),
+                ));
+            }
+            if input_abs.starts_with(&out_abs) {
+                return Err(err(
+                    out,
+                    format!(
+                        "contains the input scene {}; replacing it would delete the input",
+                        input.display()
+                    ),
+                ));
+            }
+        }
+        if out_abs.exists() {
+            let is_run = out_abs.join(REPORT_FILE).is_file();
+            let empty = out_abs
+                .read_dir()
+                .map(|mut d| d.next().is_none())
+                .unwrap_or(false);
+            if !out_abs.is_dir() || !(is_run || empty) {
+                return Err(err(
+                    out,
+                    "exists and is not a previous deocc run's output; choose an empty or new folder",
+                ));
+            }
+        }
+        let parent = out_abs
+            .parent()
+            .ok_or_else(|| err(out, "has no parent folder"))?
+            .to_path_buf();
+        let name = out_abs
+            .file_name()
+            .ok_or_else(|| err(out, "not a folder name"))?
+            .to_string_lossy()
+            .into_owned();
+        let lock = parent.join(format!(".{name}.lock"));
+        take_lock(&lock, out)?;
+        let me = std::process::id();
+        clean_dead(&parent, &name, &out_abs);
+        let dir = parent.join(format!(".{name}.partial-{me}"));
+        if dir.exists() {
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+        if let Err(e) = std::fs::create_dir_all(&dir) {
+            let _ = std::fs::remove_file(&lock);
+            return Err(err(&dir, format!("cannot write here: {e}")));
+        }
+        Ok(Self {
+            out: out_abs,
+            dir,
+            lock,
+            committed: false,
+        })
+    }
+
+    /// The folder to write into.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Where the output will be.
+    pub fn out(&self) -> &Path {
+        &self.out
+    }
+
+    /// Swaps the staged folder in (see the module docs) and releases the lock.
+    pub fn commit(mut self) -> Result<PathBuf, PipelineError> {
+        let me = std::process::id();
+        let parent = self.dir.parent().unwrap_or(Path::new(".")).to_path_buf();
+        let name = self
+            .out
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let aside = parent.join(format!(".{name}.old-{me}"));
+        let had_old = self.out.exists();
+        if had_old {
+            std::fs::rename(&self.out, &aside).map_err(|e| {
+                err(
+                    &self.out,
+                    format!("cannot move the previous output aside: {e}"),
+                )
+            })?;
+        }
+        if let Err(e) = std::fs::rename(&self.dir, &self.out) {
+            if had_old {
+                let _ = std::fs::rename(&aside, &self.out);
+            }
+            return Err(err(
+                &self.out,
+                format!("cannot move the output into place: {e}"),
+            ));
+        }
+        self.committed = true;
+        if had_old {
+            let _ = std::fs::remove_dir_all(&aside);
+        }
+        let _ = std::fs::remove_file(&self.lock);
+        Ok(self.out.clone())
+    }
+}
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_dir_all(&self.dir);
+            let _ = std::fs::remove_file(&self.lock);
+        }
+    }
+}
+
+/// Creates the lock file with our PID; takes over a lock whose process is gone.
+fn take_lock(lock: &Path, out: &Path) -> Result<(), PipelineError> {
+    use std::io::Write;
+    for _ in 0..2 {
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(lock)
+        {
+            Ok(mut f) => {
+                let _ = write!(f, "{}", std::process::id());
+                return Ok(());
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                let holder = std::fs::read_to_string(lock)
+                    .ok()
+                    .and_then(|s| s.trim().parse::<u32>().ok());
+                match holder {
+                    Some(pid) if process_alive(pid) && pid != std::process::id() => {
+                        return Err(err(
+                            out,
+                            format!(
+                                "another deocc process (PID {pid}) is writing this output; \
+                                 wait for it, or remove {} if it is gone",
+                                lock.display()
+                            ),
+                        ));
+                    }
+                    _ => {
+                        let _ = std::fs::remove_file(lock);
+                    }
+                }
+            }
+            Err(e) => return Err(err(lock, format!("cannot create the lock file: {e}"))),
+        }
+    }
+    Err(err(lock, "cannot take the lock"))
+}
+
+/// Removes staging folders of dead runs, and puts back an output a dead run had set aside.
+fn clean_dead(parent: &Path, name: &str, out: &Path) {
+    let Ok(entries) = parent.read_dir() else {
+        return;
+    };
+    let partial = format!(".{name}.partial-");
+    let old = format!(".{name}.old-");
+    for e in entries.flatten() {
+        let file = e.file_name().to_string_lossy().into_owned();
+        let pid_of = |prefix: &str| file.strip_prefix(prefix)?.parse::<u32>().ok();
+        if let Some(pid) = pid_of(&partial) {
+            if !process_alive(pid) {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        } else if let Some(pid) = pid_of(&old) {
+            if !process_alive(pid) {
+                if out.exists() {
+                    let _ = std::fs::remove_dir_all(e.path());
+                } else {
+                    let _ = std::fs::rename(e.path(), out);
+                }
+            }
+        }
+    }
+}
+
+/// The report file: where the input was, the run report, and the evaluation when there is one.
+#[derive(Serialize)]
+struct ReportFile<'a, E: Serialize> {
+    input: String,
+    #[serde(flatten)]
+    run: &'a RunReport,
+    evaluation: Option<E>,
+}
+
+/// Writes a run's output folder into `dir` (a [`Staging`] folder): clouds, instances, pictures
+/// and `report.json` naming `input` (where the scene is, after the run) and carrying
+/// `evaluation`.
+pub fn write_output<E: Serialize>(
+    dir: &Path,
+    input: &Path,
+    scene: &SceneInput,
+    result: &PipelineOutput,
+    evaluation: Option<E>,
+) -> Result<(), PipelineError> {
+    write_point_cloud(
+        &dir.join("completed.ply"),
+        &result.completed,
+        PlyEncoding::BinaryLittleEndian,
+    )?;
+    write_point_cloud(
+        &dir.join("observed.ply"),
+        &result.observed,
+        PlyEncoding::BinaryLittleEndian,
+    )?;
+    let inst_dir = dir.join("instances");
+    std::fs::create_dir_all(&inst_dir).map_err(|e| err(&inst_dir, e.to_string()))?;
+    let ids = result.completed.instance.as_deref().unwrap_or(&[]);
+    for inst in &result.report.instances {
+        let one = result
+            .completed
+            .filter(|i| ids.get(i) == Some(&(inst.instance_id as u32)));
+        write_point_cloud(
+            &inst_dir.join(format!("instance_{:04}.ply", inst.instance_id)),
+            &one,
+            PlyEncoding::BinaryLittleEndian,
+        )?;
+    }
+    write_pictures(dir, scene, result)?;
+    let report = ReportFile {
+        input: input.display().to_string(),
+        run: &result.report,
+        evaluation,
+    };
+    deocc_io::cameras::write_json(&dir.join(REPORT_FILE), &report)?;
+    Ok(())
+}
+
+/// The camera of the novel-view picture: from 1.2 m to the side of the first view and 0.6 m
+/// higher, looking at the observed cloud's centroid.
+pub fn novel_view_camera(first: &Camera, focus: &Point3<f32>) -> Option<Camera> {
+    let eye = first.center()
+        + (focus - first.center()).cross(&Vector3::z()).normalize() * 1.2
+        + Vector3::new(0.0, 0.0, 0.6);
+    let pose = look_at(&eye, focus, &Vector3::z()).ok()?;
+    Some(Camera {
+        intrinsics: first.intrinsics,
+        world_from_camera: pose,
+    })
+}
+
+fn write_pictures(
+    dir: &Path,
+    scene: &SceneInput,
+    result: &PipelineOutput,
+) -> Result<(), PipelineError> {
+    let Some(first) = scene.frames.first() else {
+        return Ok(());
+    };
+    let cam = first.camera;
+    let before = splat(&result.observed, &cam, 1, true);
+    let after = splat(&result.completed, &cam, 1, true);
+    deocc_io::images::write_rgb_png(
+        &dir.join("render_input_view.png"),
+        &side_by_side(&before, &after),
+    )?;
+    let focus = result.observed.centroid().unwrap_or(Point3::origin());
+    if let Some(novel) = novel_view_camera(&cam, &focus) {
+        let b = splat(&result.observed, &novel, 1, true);
+        let c = splat(&result.completed, &novel, 1, true);
+        deocc_io::images::write_rgb_png(&dir.join("render_novel_view.png"), &side_by_side(&b, &c))?;
+    }
+    Ok(())
+}
