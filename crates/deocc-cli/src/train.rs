@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use deocc_model::data::{shards, PairData};
-use deocc_model::train::{TrainConfig, Trainer};
+use deocc_model::data::shards;
+use deocc_model::train::{train_run, TrainConfig, TrainRunOptions};
 use deocc_model::GlDotConfig;
 
 use crate::progress::bar;
@@ -49,9 +49,18 @@ pub struct TrainArgs {
     /// Default: uniform.
     #[arg(long, value_delimiter = ',', num_args = 1..)]
     channel_loss_weights: Vec<f32>,
-    /// Use only the first N pairs (for quick experiments).
+    /// Use only the first N shards (for quick experiments).
     #[arg(long)]
-    limit_pairs: Option<usize>,
+    limit_shards: Option<usize>,
+    /// At most this many pairs in memory (about 100 KB each at 64 px): a seeded draw of shards,
+    /// drawn again every --reshuffle-every steps, so a larger set is used whole over a run.
+    #[arg(long, default_value_t = 60_000)]
+    resident_pairs: usize,
+    #[arg(long, default_value_t = 2_000)]
+    reshuffle_every: usize,
+    /// Weight of the mask head's classification loss against the flow loss.
+    #[arg(long, default_value_t = 1.0)]
+    mask_loss_weight: f32,
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
@@ -69,25 +78,32 @@ pub fn run(a: TrainArgs) -> Result<()> {
             .validate()
             .map_err(|e| anyhow::anyhow!("--mask-prior {name}: {e}"))?;
     }
-    let files = shards(&a.data, "train")
+    let mut shards = shards(&a.data, "train")
         .with_context(|| format!("{}: cannot list training pairs", a.data.display()))?;
-    if files.is_empty() {
+    if shards.is_empty() {
         bail!("{}: no train-*.safetensors shards; make them with `deocc synth pairs --split train --out {}`", a.data.display(), a.data.display());
     }
-    let mut data = PairData::load(&files)?;
-    if let Some(n) = a.limit_pairs {
-        let mut set = data.set.clone();
-        set.truncate(n);
-        data = PairData::new(set);
+    if let Some(n) = a.limit_shards {
+        shards.truncate(n.max(1));
     }
-    if data.resolution() != model.resolution {
+    for (name, v) in [
+        ("--batch-size", a.batch_size),
+        ("--steps", a.steps),
+        ("--checkpoint-every", a.checkpoint_every),
+        ("--resident-pairs", a.resident_pairs),
+        ("--reshuffle-every", a.reshuffle_every),
+    ] {
+        if v == 0 {
+            bail!("{name} must be at least 1");
+        }
+    }
+    if !(a.learning_rate.is_finite() && a.learning_rate > 0.0 && a.learning_rate < 1.0) {
+        bail!("--learning-rate {} is outside (0, 1)", a.learning_rate);
+    }
+    if !(a.mask_loss_weight.is_finite() && a.mask_loss_weight >= 0.0) {
         bail!(
-            "pairs are {}x{} but preset '{}' expects {}x{}",
-            data.resolution(),
-            data.resolution(),
-            a.preset,
-            model.resolution,
-            model.resolution
+            "--mask-loss-weight {} must be finite and non-negative",
+            a.mask_loss_weight
         );
     }
     let config = TrainConfig {
@@ -97,37 +113,33 @@ pub fn run(a: TrainArgs) -> Result<()> {
         steps: a.steps,
         learning_rate: a.learning_rate,
         timestep_shift: a.timestep_shift,
-        checkpoint_every: a.checkpoint_every.max(1),
+        checkpoint_every: a.checkpoint_every,
         channel_loss_weights: a.channel_loss_weights,
+        mask_loss_weight: a.mask_loss_weight,
         ..TrainConfig::default()
     };
+    let opts = TrainRunOptions {
+        run: a.run.clone(),
+        config,
+        init: a.init.clone(),
+        shards,
+        resident_pairs: a.resident_pairs,
+        reshuffle_every: a.reshuffle_every,
+    };
     let device = candle_core::Device::Cpu;
-    let mut trainer = Trainer::open(&a.run, config, &device)?;
-    if let Some(init) = &a.init {
-        if trainer.state.step > 0 {
-            bail!(
-                "--init starts a new run, but {} already holds step {}",
-                a.run.display(),
-                trainer.state.step
+    let mut pb: Option<indicatif::ProgressBar> = None;
+    let mut recent: Vec<f32> = Vec::new();
+    let state = train_run(&opts, &device, &mut |trainer, r| {
+        let pb = pb.get_or_insert_with(|| {
+            let start = trainer.state.step.saturating_sub(1);
+            eprintln!(
+                "training {} parameters, step {start} -> {}, run {}",
+                deocc_model::model::parameter_count(&trainer.varmap),
+                trainer.config.steps,
+                a.run.display()
             );
-        }
-        trainer.init_from(&init.join("ema.safetensors"))?;
-    }
-    // Condition channel 6 carries the prior of the model being trained (a resumed run's own).
-    let data = data.with_mask_prior(trainer.config.model.mask_prior);
-    let start = trainer.state.step;
-    let total = trainer.config.steps;
-    eprintln!(
-        "training {} pairs, {} parameters, step {start} -> {total}, run {}",
-        data.len(),
-        deocc_model::model::parameter_count(&trainer.varmap),
-        a.run.display()
-    );
-    let pb = bar((total.saturating_sub(start)) as u64, "train");
-    let mut recent = Vec::new();
-    while trainer.state.step < total {
-        let r = trainer.step(&data)?;
-        Trainer::log(&a.run, &r)?;
+            bar((trainer.config.steps - start) as u64, "train")
+        });
         recent.push(r.loss);
         if recent.len() > 50 {
             recent.remove(0);
@@ -137,16 +149,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
             recent.iter().sum::<f32>() / recent.len() as f32
         ));
         pb.inc(1);
-        if r.step % trainer.config.checkpoint_every == 0 {
-            trainer.checkpoint(&a.run)?;
-        }
+    })?;
+    if let Some(pb) = pb {
+        pb.finish_and_clear();
     }
-    trainer.checkpoint(&a.run)?;
-    pb.finish_and_clear();
     println!(
         "trained to step {} (last loss {:.4}); run in {}",
-        trainer.state.step,
-        trainer.state.last_loss,
+        state.step,
+        state.last_loss,
         a.run.display()
     );
     Ok(())

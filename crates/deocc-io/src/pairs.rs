@@ -234,3 +234,30 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
     }
     Ok(set)
 }
+
+/// The number of pairs in a shard, from its header alone (no tensor data is read).
+pub fn count_pairs(path: &Path) -> Result<usize> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).map_err(|e| IoError::new(path, e))?;
+    let mut len = [0u8; 8];
+    f.read_exact(&mut len).map_err(|e| IoError::new(path, e))?;
+    let n = u64::from_le_bytes(len);
+    let size = f.metadata().map_err(|e| IoError::new(path, e))?.len();
+    if n == 0 || n > size.saturating_sub(8) || n > 100 << 20 {
+        return Err(IoError::invalid(
+            path,
+            format!("not a safetensors file (header of {n} bytes in a file of {size})"),
+        ));
+    }
+    let mut header = vec![0u8; n as usize];
+    f.read_exact(&mut header)
+        .map_err(|e| IoError::new(path, e))?;
+    let json: serde_json::Value = serde_json::from_slice(&header)
+        .map_err(|e| IoError::invalid(path, format!("safetensors header: {e}")))?;
+    json.get("group")
+        .and_then(|g| g.get("shape"))
+        .and_then(|s| s.get(0))
+        .and_then(|n| n.as_u64())
+        .map(|n| n as usize)
+        .ok_or_else(|| IoError::invalid(path, "no 'group' tensor: not a pair shard"))
+}

@@ -15,6 +15,21 @@ pub enum AttentionKind {
 /// in condition channel 6: [`deocc_completion::priors`].
 pub use deocc_completion::MaskPrior;
 
+/// What the residual model's colour and depth start from (its output with a zero residual).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ResidualBase {
+    /// The visible pixels' colour on white and the visible depth for both depth channels: the
+    /// base of every model up to runs/gldot-small-v10, hence the default of stored configs.
+    #[default]
+    Visible,
+    /// The rules completer's answer ([`deocc_completion::rules`]): the nearest visible colour,
+    /// the plane through the visible near side, the symmetric far side, inside the prior mask.
+    /// Carried as condition channels 7-11, so the model sees where it starts from; a zero
+    /// residual is the rules baseline.
+    Rules,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GlDotConfig {
     /// Crop side in pixels.
@@ -41,9 +56,19 @@ pub struct GlDotConfig {
     /// spends its capacity on the hidden part. Older weights were trained without it.
     #[serde(default)]
     pub residual: bool,
-    /// Which mask the residual is added to (RGB and depth priors are always the visible ones).
+    /// Which mask the residual is added to.
     #[serde(default)]
     pub mask_prior: MaskPrior,
+    /// What colour and depth the residual is added to.
+    #[serde(default)]
+    pub base: ResidualBase,
+    /// One more output channel: a per-pixel logit that the pixel belongs to the object, added
+    /// to +-[`crate::encode::PRIOR_LOGIT`] on the prior's pixels (a zero head is the prior),
+    /// trained as a classification (BCE + Dice over the pixels where the object can be hidden)
+    /// from pure noise at t = 1 and read at the sampler's first step. The flow's mask channel is
+    /// then not used.
+    #[serde(default)]
+    pub mask_head: bool,
 }
 
 impl GlDotConfig {
@@ -53,7 +78,7 @@ impl GlDotConfig {
             resolution: 16,
             patch: 4,
             target_channels: 6,
-            cond_channels: 7,
+            cond_channels: 12,
             width: 32,
             depth: 2,
             head_dim: 16,
@@ -63,16 +88,19 @@ impl GlDotConfig {
             cond_depth: 1,
             residual: true,
             mask_prior: MaskPrior::EllipseOrBoxInFront,
+            base: ResidualBase::Rules,
+            mask_head: true,
         }
     }
 
-    /// The shipped CPU model: 64x64 crops, 256 tokens of width 128, 6 blocks.
+    /// The CPU model: 64x64 crops, 256 tokens of width 128, 6 blocks, the rules base and the mask
+    /// head (runs/gldot-small-v10, shipped before, has the visible base and no head).
     pub fn small() -> Self {
         Self {
             resolution: 64,
             patch: 4,
             target_channels: 6,
-            cond_channels: 7,
+            cond_channels: 12,
             width: 128,
             depth: 6,
             head_dim: 32,
@@ -82,6 +110,8 @@ impl GlDotConfig {
             cond_depth: 2,
             residual: true,
             mask_prior: MaskPrior::EllipseOrBoxInFront,
+            base: ResidualBase::Rules,
+            mask_head: true,
         }
     }
 
@@ -92,7 +122,7 @@ impl GlDotConfig {
             resolution: 128,
             patch: 2,
             target_channels: 6,
-            cond_channels: 7,
+            cond_channels: 12,
             width: 1152,
             depth: 28,
             head_dim: 32,
@@ -102,6 +132,8 @@ impl GlDotConfig {
             cond_depth: 4,
             residual: true,
             mask_prior: MaskPrior::EllipseOrBoxInFront,
+            base: ResidualBase::Rules,
+            mask_head: true,
         }
     }
 
@@ -126,12 +158,23 @@ impl GlDotConfig {
     pub fn cond_grid(&self) -> usize {
         self.resolution / self.cond_patch
     }
+    /// Output channels of the denoiser: the velocity of every target channel, and the mask logit.
+    pub fn out_channels(&self) -> usize {
+        self.target_channels + self.mask_head as usize
+    }
+
     pub fn mlp_hidden(&self) -> usize {
         (self.mlp_ratio * self.width as f64).round() as usize
     }
 
     /// Checks the shape arithmetic; every constructor path calls it.
     pub fn validate(&self) -> Result<(), String> {
+        if self.patch == 0 || self.cond_patch == 0 || self.resolution == 0 || self.width == 0 {
+            return Err(format!(
+                "resolution {}, patch {}, cond_patch {} and width {} must be positive",
+                self.resolution, self.patch, self.cond_patch, self.width
+            ));
+        }
         if self.resolution % self.patch != 0 || self.resolution % self.cond_patch != 0 {
             return Err(format!(
                 "resolution {} must be a multiple of patch {} and cond_patch {}",
@@ -146,6 +189,19 @@ impl GlDotConfig {
         }
         if self.depth == 0 || self.target_channels == 0 {
             return Err("depth and target_channels must be positive".into());
+        }
+        if self.base == ResidualBase::Rules && (self.cond_channels < 12 || !self.residual) {
+            return Err(format!(
+                "base rules reads condition channels 7-11 of a residual model, but cond_channels is \
+                 {} (residual {})",
+                self.cond_channels, self.residual
+            ));
+        }
+        if self.mask_head && (self.mask_prior == MaskPrior::Visible || self.target_channels < 6) {
+            return Err(
+                "mask_head needs a geometric mask_prior (condition channel 6) and 6 target channels"
+                    .into(),
+            );
         }
         if self.mask_prior != MaskPrior::Visible && self.cond_channels < 7 {
             return Err(format!(

@@ -5,19 +5,29 @@
 //! 0-2 crop RGB `v / 127.5 - 1` (-1 outside the image), 3 visible mask `+-1`, 4 visible relative
 //! depth x [`DEPTH_SCALE`] (0 elsewhere), 5 scene relative depth x [`DEPTH_SCALE`] (clamped to
 //! [-1, 1] before scaling, 0 where unmeasured), 6 the geometric prior of the model's
-//! [`MaskPrior`] `+-1`. Models read the first `cond_channels` of them, so weights trained before a
-//! channel was added keep working.
+//! [`MaskPrior`] `+-1`, 7-9 the rules completer's colour (the nearest visible colour inside the
+//! prior, white outside), 10 its near-side and 11 its far-side relative depth x [`DEPTH_SCALE`]
+//! inside the prior (0 outside): the residual base of `base: rules` models
+//! ([`crate::config::ResidualBase`]). Models read the first `cond_channels` of them, so weights
+//! trained before a channel was added keep working.
 //!
 //! Target channels ([`TARGET_CHANNELS`]): RGB `v / 127.5 - 1`, amodal mask `2 m - 1`, near-side and
 //! far-side relative depth x [`DEPTH_SCALE`].
 
 use candle_core::{Device, Result, Tensor};
+use deocc_completion::rules::RulesCompleter;
 use deocc_completion::{CropCondition, MaskPrior};
+
+use crate::config::ResidualBase;
 
 /// Relative depth is (d - median visible) / crop width: about +-0.5; doubled to fill [-1, 1].
 pub const DEPTH_SCALE: f32 = 2.0;
 pub const TARGET_CHANNELS: usize = 6;
-pub const COND_CHANNELS: usize = 7;
+pub const COND_CHANNELS: usize = 12;
+
+/// The mask head's logit on a prior pixel with a zero head (minus this off the prior): the
+/// prior at probability 0.88.
+pub const PRIOR_LOGIT: f32 = 2.0;
 
 /// Writes one crop's condition channels into `out` (r*r*[`COND_CHANNELS`]), channel 6 carrying
 /// the prior of kind `prior`.
@@ -35,6 +45,28 @@ pub fn write_condition(c: &CropCondition, prior: MaskPrior, out: &mut [f32]) {
         };
         o[5] = c.scene_depth[k] * DEPTH_SCALE;
         o[6] = if prior_mask[k] { 1.0 } else { -1.0 };
+    }
+    // The rules base (channels 7-11), on the default prior as the rules completer makes it.
+    let rules = RulesCompleter {
+        resolution: c.resolution,
+        ..RulesCompleter::default()
+    }
+    .complete_one(c);
+    for (k, o) in out.chunks_exact_mut(COND_CHANNELS).enumerate() {
+        for (o, &v) in o[7..10].iter_mut().zip(&rules.rgb[3 * k..3 * k + 3]) {
+            *o = v as f32 / 127.5 - 1.0;
+        }
+        let inside = rules.amodal[k];
+        o[10] = if inside {
+            rules.depth[k] * DEPTH_SCALE
+        } else {
+            0.0
+        };
+        o[11] = if inside {
+            rules.back_depth[k] * DEPTH_SCALE
+        } else {
+            0.0
+        };
     }
 }
 
@@ -89,24 +121,40 @@ pub fn condition_tensor(
     Tensor::from_vec(data, (crops.len(), r, r, COND_CHANNELS), device)
 }
 
-/// The prior of a condition batch (B, R, R, 7) in target channels (B, R, R, 6): the crop's RGB on
-/// the visible pixels and white elsewhere, the chosen mask prior as the amodal mask (the visible
-/// mask, channel 3, or the hull-in-front prior, channel 6), and the visible depth for both the
-/// near and the far side. With the visible mask it is the "amodal = visible" answer, exact on
-/// every pixel an occluder does not hide, which is why the residual model generates only the rest.
-pub fn residual_prior(cond: &Tensor, mask_prior: MaskPrior) -> Result<Tensor> {
-    let rgb = cond.narrow(3, 0, 3)?;
-    let vis_mask = cond.narrow(3, 3, 1)?;
-    let depth = cond.narrow(3, 4, 1)?;
-    let vis = ((&vis_mask + 1.0)? * 0.5)?; // {0, 1}
-    let white = (vis.neg()? + 1.0)?;
-    let prior_rgb = rgb.broadcast_mul(&vis)?.broadcast_add(&white)?;
-    let prior_depth = depth.mul(&vis)?;
+/// The residual base of a condition batch (B, R, R, [`COND_CHANNELS`]) in target channels (B, R, R,
+/// 6): what the model's output is with a zero residual.
+///
+/// - [`ResidualBase::Visible`]: the crop's RGB on the visible pixels and white elsewhere, the
+///   mask of `mask_prior` (the visible mask, channel 3, or the geometric prior, channel 6), and
+///   the visible depth for both the near and the far side: the "amodal = visible" answer, exact
+///   on every pixel an occluder does not hide.
+/// - [`ResidualBase::Rules`]: the rules completion of channels 7-11 and the prior mask.
+pub fn residual_prior(cond: &Tensor, mask_prior: MaskPrior, base: ResidualBase) -> Result<Tensor> {
     let mask = match mask_prior {
-        MaskPrior::Visible => vis_mask,
+        MaskPrior::Visible => cond.narrow(3, 3, 1)?,
         MaskPrior::HullInFront | MaskPrior::EllipseInFront | MaskPrior::EllipseOrBoxInFront => {
             cond.narrow(3, 6, 1)?
         }
     };
-    Tensor::cat(&[&prior_rgb, &mask, &prior_depth, &prior_depth], 3)
+    match base {
+        ResidualBase::Visible => {
+            let rgb = cond.narrow(3, 0, 3)?;
+            let vis_mask = cond.narrow(3, 3, 1)?;
+            let depth = cond.narrow(3, 4, 1)?;
+            let vis = ((&vis_mask + 1.0)? * 0.5)?; // {0, 1}
+            let white = (vis.neg()? + 1.0)?;
+            let prior_rgb = rgb.broadcast_mul(&vis)?.broadcast_add(&white)?;
+            let prior_depth = depth.mul(&vis)?;
+            Tensor::cat(&[&prior_rgb, &mask, &prior_depth, &prior_depth], 3)
+        }
+        ResidualBase::Rules => Tensor::cat(
+            &[
+                &cond.narrow(3, 7, 3)?,
+                &mask,
+                &cond.narrow(3, 10, 1)?,
+                &cond.narrow(3, 11, 1)?,
+            ],
+            3,
+        ),
+    }
 }

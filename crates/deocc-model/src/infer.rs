@@ -9,7 +9,7 @@ use candle_nn::VarBuilder;
 
 use crate::config::GlDotConfig;
 use crate::encode::{
-    condition_tensor, residual_prior, COND_CHANNELS, DEPTH_SCALE, TARGET_CHANNELS,
+    condition_tensor, residual_prior, COND_CHANNELS, DEPTH_SCALE, PRIOR_LOGIT, TARGET_CHANNELS,
 };
 use crate::flow::euler_sample;
 use crate::init::randn;
@@ -183,16 +183,32 @@ impl GlDotCompleter {
         };
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let noise = randn((b, r, r, TARGET_CHANNELS), &mut rng, &self.device)?;
+        let cfg = &self.model.config;
+        // The mask head is read at the first step (t = 1, pure noise), as it was trained.
+        let mut head: Option<Tensor> = None;
         let x0 = euler_sample(&noise, steps, self.timestep_shift, |x, t| {
             let tt = Tensor::full(t, b, &self.device)?;
-            self.model.forward(x, &tt, cond, &tokens)
+            let out = self.model.forward(x, &tt, cond, &tokens)?;
+            if !cfg.mask_head {
+                return Ok(out);
+            }
+            if head.is_none() {
+                head = Some(out.narrow(3, cfg.target_channels, 1)?);
+            }
+            out.narrow(3, 0, cfg.target_channels)
         })?;
-        let x0 = if self.model.config.residual {
-            (x0 + residual_prior(cond, self.model.config.mask_prior)?)?
+        let x0 = if cfg.residual {
+            (x0 + residual_prior(cond, cfg.mask_prior, cfg.base)?)?
         } else {
             x0
         };
-        Ok(x0)
+        match head {
+            Some(h) => {
+                let logit = (h + (cond.narrow(3, 6, 1)? * f64::from(PRIOR_LOGIT))?)?;
+                Ok(Tensor::cat(&[&x0, &logit], 3)?)
+            }
+            None => Ok(x0),
+        }
     }
 
     /// The completer's mask rule for one pixel at a given threshold: visible pixels are in, prior
@@ -275,25 +291,40 @@ impl GlDotCompleter {
         let data = x0.flatten_all()?.to_vec1::<f32>()?;
         let cond_data = cond.flatten_all()?.to_vec1::<f32>()?;
         let n = r * r;
+        let oc = x0.dim(3)?;
+        let head = self.model.config.mask_head;
         Ok((0..b)
             .map(|k| {
-                let px = &data[k * n * TARGET_CHANNELS..(k + 1) * n * TARGET_CHANNELS];
+                let px = &data[k * n * oc..(k + 1) * n * oc];
                 let cx = &cond_data[k * n * COND_CHANNELS..(k + 1) * n * COND_CHANNELS];
                 let mask_score: Vec<f32> = px
-                    .chunks_exact(TARGET_CHANNELS)
+                    .chunks_exact(oc)
                     .zip(cx.chunks_exact(COND_CHANNELS))
                     .map(|(p, c)| {
-                        let behind = c[5] > p[4] + FREE_SPACE_MARGIN * DEPTH_SCALE;
-                        if free_space && c[3] <= 0.0 && behind {
-                            f32::NEG_INFINITY
+                        if head {
+                            // The head's probability, on the pixels where a hidden part can be
+                            // (the scene in front of the object's median depth).
+                            let candidate = c[3] <= 0.0 && c[5] < 0.0;
+                            if c[3] > 0.0 {
+                                1.0
+                            } else if free_space && !candidate {
+                                f32::NEG_INFINITY
+                            } else {
+                                sigmoid(p[TARGET_CHANNELS])
+                            }
                         } else {
-                            p[3]
+                            let behind = c[5] > p[4] + FREE_SPACE_MARGIN * DEPTH_SCALE;
+                            if free_space && c[3] <= 0.0 && behind {
+                                f32::NEG_INFINITY
+                            } else {
+                                p[3]
+                            }
                         }
                     })
                     .collect();
                 Completion {
                     rgb: px
-                        .chunks_exact(TARGET_CHANNELS)
+                        .chunks_exact(oc)
                         .flat_map(|p| {
                             (0..3)
                                 .map(|c| ((p[c] + 1.0) * 127.5).round().clamp(0.0, 255.0) as u8)
@@ -307,18 +338,16 @@ impl GlDotCompleter {
                         .map(|(&m, c)| self.in_mask(m, c[3] > 0.0, c[6] > 0.0, self.mask_threshold))
                         .collect(),
                     mask_score,
-                    depth_rel: px
-                        .chunks_exact(TARGET_CHANNELS)
-                        .map(|p| p[4] / DEPTH_SCALE)
-                        .collect(),
-                    back_depth_rel: px
-                        .chunks_exact(TARGET_CHANNELS)
-                        .map(|p| p[5] / DEPTH_SCALE)
-                        .collect(),
+                    depth_rel: px.chunks_exact(oc).map(|p| p[4] / DEPTH_SCALE).collect(),
+                    back_depth_rel: px.chunks_exact(oc).map(|p| p[5] / DEPTH_SCALE).collect(),
                 }
             })
             .collect())
     }
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
 }
 
 /// Mirrors images (B, H, W, C) left to right.
@@ -398,16 +427,22 @@ impl deocc_completion::Completer for GlDotCompleter {
         Ok(done
             .into_iter()
             .zip(batch)
-            .map(|(c, req)| c.into_crop_completion(&req.condition.visible))
+            .map(|(c, req)| {
+                c.into_crop_completion(&req.condition.visible, self.model.config.mask_head)
+            })
             .collect())
     }
 }
 
 impl Completion {
-    /// The plain-data completion of the pipeline's seam. The mask channel of the flow model is
-    /// not a probability; `(score + 1) / 2` clamped to [0, 1] stands in for one (1 on visible
-    /// pixels, 0 where the free-space constraint rules the object out).
-    pub fn into_crop_completion(self, visible: &[bool]) -> deocc_completion::CropCompletion {
+    /// The plain-data completion of the pipeline's seam. A mask head's score is a probability;
+    /// the flow model's mask channel is not, and `(score + 1) / 2` clamped to [0, 1] stands in
+    /// for one (1 on visible pixels, 0 where the free-space constraint rules the object out).
+    pub fn into_crop_completion(
+        self,
+        visible: &[bool],
+        score_is_probability: bool,
+    ) -> deocc_completion::CropCompletion {
         let mask_probability = self
             .mask_score
             .iter()
@@ -415,6 +450,8 @@ impl Completion {
             .map(|(&s, &v)| {
                 if v {
                     1.0
+                } else if score_is_probability {
+                    s.clamp(0.0, 1.0)
                 } else {
                     ((s + 1.0) / 2.0).clamp(0.0, 1.0)
                 }

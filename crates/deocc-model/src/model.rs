@@ -354,7 +354,7 @@ impl GlDot {
             )?,
             final_linear: linear_init(
                 d,
-                p * p * config.target_channels,
+                p * p * config.out_channels(),
                 vb.pp("final_layer.linear"),
                 0.0,
             )?,
@@ -385,7 +385,9 @@ impl GlDot {
     }
 
     /// Predicted velocity for noisy targets `x_t` (B, R, R, target_channels) at times `t` (B,),
-    /// given the conditioning image (B, R, R, cond_channels) and condition tokens (B, M, D).
+    /// given the conditioning image (B, R, R, cond_channels) and condition tokens (B, M, D):
+    /// (B, R, R, out_channels), the velocity first, then (with `mask_head`) the mask head's raw
+    /// output (the logit less the prior's +-[`crate::encode::PRIOR_LOGIT`]).
     pub fn forward(
         &self,
         x_t: &Tensor,
@@ -418,7 +420,7 @@ impl GlDot {
         unpatchify(
             &self.final_linear.forward(&x)?,
             cfg.patch,
-            cfg.target_channels,
+            cfg.out_channels(),
         )
     }
 }

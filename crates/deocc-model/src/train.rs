@@ -77,6 +77,11 @@ pub struct TrainConfig {
     /// Inference, not training: keep the geometric prior's pixels in the amodal mask
     /// ([`crate::infer::GlDotCompleter`]'s `keep_prior`), chosen on validation pairs.
     pub mask_keeps_prior: bool,
+    /// Weight of the mask head's loss against the flow loss (models with `mask_head`).
+    pub mask_loss_weight: f32,
+    /// Fraction of each batch drawn at t = 1 and trained on the mask head (models with
+    /// `mask_head`), in (0, 1].
+    pub mask_head_noise_fraction: f64,
 }
 
 impl Default for TrainConfig {
@@ -98,6 +103,8 @@ impl Default for TrainConfig {
             mask_threshold: 0.0,
             inference_samples: 1,
             mask_keeps_prior: false,
+            mask_loss_weight: 1.0,
+            mask_head_noise_fraction: 0.5,
         }
     }
 }
@@ -281,9 +288,53 @@ pub fn random_batch_loss(
     let c = mix_views(&toks.narrow(0, 0, b)?, &toks.narrow(0, b, b)?, &half)?;
     let eps = randn((b, r, r, tc), rng, device)?;
     let xt = interpolate(&x0, &eps, &half)?;
-    (model.forward(&xt, &half, &cond, &c)? - velocity_target(&x0, &eps)?)?
+    (model.forward(&xt, &half, &cond, &c)?.narrow(3, 0, tc)? - velocity_target(&x0, &eps)?)?
         .sqr()?
         .mean_all()
+}
+
+/// The mask head's classification loss: binary cross-entropy plus Dice over the candidate
+/// pixels (not visible, the scene observed in front of the object's median depth: where a hidden
+/// part can be), the logit being `head + PRIOR_LOGIT * prior`. `head` (B, R, R, 1), `cond` (B, R,
+/// R, [`crate::encode::COND_CHANNELS`]), `target` (B, R, R, 6) with the amodal mask in channel 3.
+/// Both terms in stable forms (softplus), so saturated logits give finite gradients.
+pub fn mask_head_loss(
+    head: &Tensor,
+    cond: &Tensor,
+    target: &Tensor,
+) -> candle_core::Result<Tensor> {
+    let (b, r, _, _) = head.dims4()?;
+    let n = r * r;
+    let cc = cond.dim(3)?;
+    let cond_host = cond.flatten_all()?.to_vec1::<f32>()?;
+    let target_host = target.narrow(3, 3, 1)?.flatten_all()?.to_vec1::<f32>()?;
+    let region: Vec<f32> = (0..b * n)
+        .map(|i| {
+            let c = &cond_host[i * cc..(i + 1) * cc];
+            (c[3] <= 0.0 && c[5] < 0.0) as u8 as f32
+        })
+        .collect();
+    let y: Vec<f32> = target_host
+        .iter()
+        .map(|&m| (m > 0.0) as u8 as f32)
+        .collect();
+    let shape = (b, r, r, 1);
+    let dev = head.device();
+    let region = Tensor::from_vec(region, shape, dev)?;
+    let y = Tensor::from_vec(y, shape, dev)?;
+    let logit = (head + (cond.narrow(3, 6, 1)? * f64::from(crate::encode::PRIOR_LOGIT))?)?;
+    // log(1 + exp(-|l|)), and softplus(-l) = relu(-l) + that: -log(sigmoid(l)).
+    let log1p_exp = (logit.abs()?.neg()?.exp()? + 1.0)?.log()?;
+    let bce = ((logit.relu()? - (&logit * &y)?)? + &log1p_exp)?;
+    let count = region.sum_all()?.to_scalar::<f32>()?.max(1.0);
+    let bce = ((bce * &region)?.sum_all()? / f64::from(count))?;
+    let p = (logit.neg()?.relu()? + &log1p_exp)?.neg()?.exp()?;
+    let (p, y) = ((p * &region)?, (y * &region)?);
+    let inter = (&p * &y)?.sum((1, 2, 3))?;
+    let sums = (p.sum((1, 2, 3))? + y.sum((1, 2, 3))?)?;
+    let dice = (((inter * 2.0)? + 1.0)? / (sums + 1.0)?)?;
+    let dice = (dice.neg()? + 1.0)?.mean_all()?;
+    bce + dice
 }
 
 /// A training run in memory.
@@ -402,6 +453,8 @@ impl Trainer {
             if w.shape() != var.shape() {
                 if let Some(grown) = self.grow_input_channels(name, &w)? {
                     w = grown;
+                } else if let Some(grown) = self.grow_output_channels(name, &w)? {
+                    w = grown;
                 }
             }
             if w.shape() != var.shape() {
@@ -443,6 +496,35 @@ impl Trainer {
         ))
     }
 
+    /// Warm start across an added output channel (the mask head): the final layer's rows are
+    /// (patch, patch, channels), channel fastest; a model with fewer output channels gets zero
+    /// rows (weight) and zero entries (bias) for the new last channels, so the grown model's
+    /// velocity is the old one's and its head starts at zero (the prior).
+    fn grow_output_channels(&self, name: &str, w: &Tensor) -> Result<Option<Tensor>> {
+        let m = &self.config.model;
+        let area = m.patch * m.patch;
+        let new_channels = m.out_channels();
+        let rows = w.dim(0)?;
+        if rows % area != 0 || rows / area >= new_channels {
+            return Ok(None);
+        }
+        let old_channels = rows / area;
+        let grown = match name {
+            "final_layer.linear.weight" => {
+                let (_, d) = w.dims2()?;
+                w.reshape((area, old_channels, d))?
+                    .pad_with_zeros(1, 0, new_channels - old_channels)?
+                    .reshape((area * new_channels, d))?
+            }
+            "final_layer.linear.bias" => w
+                .reshape((area, old_channels))?
+                .pad_with_zeros(1, 0, new_channels - old_channels)?
+                .reshape(area * new_channels)?,
+            _ => return Ok(None),
+        };
+        Ok(Some(grown))
+    }
+
     /// Saves a complete checkpoint; `state.json` goes last so a crash mid-way leaves the previous
     /// checkpoint valid... except for the weight files already replaced, which are then one step
     /// ahead of their state: harmless for training.
@@ -465,7 +547,11 @@ impl Trainer {
         write_json(&dir.join("state.json"), &self.state)
     }
 
-    /// Rectified-flow loss of a batch (used by training and by tests).
+    /// The training loss of a batch (used by training and by tests): the rectified-flow loss of
+    /// the residual, plus, with a mask head, its classification loss
+    /// ([`mask_head_loss`]) on the first `mask_head_noise_fraction` of the batch, whose samples are
+    /// drawn at t = 1 (pure noise: the head sees only the condition, as at the sampler's first
+    /// step, where inference reads it).
     pub fn loss(
         &self,
         data: &PairData,
@@ -473,13 +559,14 @@ impl Trainer {
         rng: &mut impl Rng,
     ) -> candle_core::Result<Tensor> {
         let cfg = &self.config;
+        let m = &cfg.model;
         let b = indices.len();
         let flips: Vec<bool> = (0..b).map(|_| rng.random_bool(0.5)).collect();
-        let (x0, cond) = data.batch(indices, &flips, &self.device)?;
-        let x0 = if cfg.model.residual {
-            (x0 - crate::encode::residual_prior(&cond, cfg.model.mask_prior)?)?
+        let (target, cond) = data.batch(indices, &flips, &self.device)?;
+        let x0 = if m.residual {
+            (&target - crate::encode::residual_prior(&cond, m.mask_prior, m.base)?)?
         } else {
-            x0
+            target.clone()
         };
         // Other views for cross-view conditioning (own view with rho = 0 when none is drawn).
         let mut others = Vec::with_capacity(b);
@@ -504,23 +591,40 @@ impl Trainer {
         let own = tokens.narrow(0, 0, b)?;
         let other = tokens.narrow(0, b, b)?;
         let cond_tokens = mix_views(&own, &other, &Tensor::from_vec(rho, b, &self.device)?)?;
-        let t = Tensor::from_vec(
-            sample_timesteps(b, cfg.timestep_shift, rng),
-            b,
-            &self.device,
-        )?;
+        let mut times = sample_timesteps(b, cfg.timestep_shift, rng);
+        let head_samples = if m.mask_head {
+            ((b as f64 * cfg.mask_head_noise_fraction).ceil() as usize).clamp(1, b)
+        } else {
+            0
+        };
+        times[..head_samples].fill(1.0);
+        let t = Tensor::from_vec(times, b, &self.device)?;
         let eps = randn(x0.shape(), rng, &self.device)?;
         let x_t = interpolate(&x0, &eps, &t)?;
-        let v = self.model.forward(&x_t, &t, &cond, &cond_tokens)?;
+        let out = self.model.forward(&x_t, &t, &cond, &cond_tokens)?;
+        let v = out.narrow(3, 0, m.target_channels)?;
         let err = (v - velocity_target(&x0, &eps)?)?.sqr()?;
         let w = &cfg.channel_loss_weights;
-        if w.is_empty() {
-            return err.mean_all();
+        let flow = if w.is_empty() {
+            err.mean_all()?
+        } else {
+            let mean = w.iter().sum::<f32>() / w.len() as f32;
+            let w: Vec<f32> = w.iter().map(|x| x / mean).collect();
+            let w = Tensor::from_vec(w, (1, 1, 1, m.target_channels), &self.device)?;
+            err.broadcast_mul(&w)?.mean_all()?
+        };
+        if head_samples == 0 {
+            return Ok(flow);
         }
-        let mean = w.iter().sum::<f32>() / w.len() as f32;
-        let w: Vec<f32> = w.iter().map(|x| x / mean).collect();
-        let w = Tensor::from_vec(w, (1, 1, 1, cfg.model.target_channels), &self.device)?;
-        err.broadcast_mul(&w)?.mean_all()
+        let head = out
+            .narrow(3, m.target_channels, 1)?
+            .narrow(0, 0, head_samples)?;
+        let mask = mask_head_loss(
+            &head,
+            &cond.narrow(0, 0, head_samples)?,
+            &target.narrow(0, 0, head_samples)?,
+        )?;
+        flow + (mask * f64::from(cfg.mask_loss_weight))?
     }
 
     /// One optimisation step on a random batch.
@@ -620,4 +724,118 @@ impl Trainer {
     pub fn ema_weights(&self) -> &BTreeMap<String, Tensor> {
         &self.ema
     }
+}
+
+/// A training run as `deocc train` makes it: where, with what, from which data.
+#[derive(Debug, Clone)]
+pub struct TrainRunOptions {
+    /// Run directory: created if new, resumed if it holds a checkpoint.
+    pub run: PathBuf,
+    /// The configuration of a new run (a resumed run keeps its own; only `steps` may change).
+    pub config: TrainConfig,
+    /// Weights to start a new run from (a folder with `ema.safetensors`), grown by any channel
+    /// the new configuration adds.
+    pub init: Option<PathBuf>,
+    /// Training-pair shards.
+    pub shards: Vec<PathBuf>,
+    /// At most this many pairs in memory: a seeded draw of shards, drawn again every
+    /// `reshuffle_every` steps, so a set larger than memory is used whole over a run.
+    pub resident_pairs: usize,
+    pub reshuffle_every: usize,
+}
+
+/// The shards resident in draw `epoch`: a seeded shuffle, taken until `budget` pairs (each
+/// shard's size from `sizes`; at least one shard).
+pub fn resident_shards(sizes: &[usize], budget: usize, seed: u64, epoch: u64) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..sizes.len()).collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ epoch.wrapping_mul(0x2545_f491_4f6c_dd1d));
+    for i in (1..order.len()).rev() {
+        order.swap(i, rng.random_range(0..=i));
+    }
+    let mut taken = Vec::new();
+    let mut total = 0usize;
+    for k in order {
+        if !taken.is_empty() && total + sizes[k] > budget {
+            continue;
+        }
+        total += sizes[k];
+        taken.push(k);
+    }
+    taken.sort_unstable();
+    taken
+}
+
+/// Pairs in each shard (reads the safetensors header only).
+fn shard_sizes(shards: &[PathBuf]) -> Result<Vec<usize>> {
+    shards
+        .iter()
+        .map(|p| deocc_io::pairs::count_pairs(p).map_err(|e| file_err(p, e)))
+        .collect()
+}
+
+/// Trains a run to `config.steps` (resuming it if it has a checkpoint), checkpointing every
+/// `checkpoint_every` steps and at the end; `on_step` sees every step (progress, logging).
+pub fn train_run(
+    opts: &TrainRunOptions,
+    device: &Device,
+    on_step: &mut dyn FnMut(&Trainer, &StepReport),
+) -> Result<TrainState> {
+    if opts.shards.is_empty() {
+        return Err(TrainError::Config("no training-pair shards".into()));
+    }
+    if opts.reshuffle_every == 0 || opts.resident_pairs == 0 {
+        return Err(TrainError::Config(
+            "resident_pairs and reshuffle_every must be positive".into(),
+        ));
+    }
+    let mut trainer = Trainer::open(&opts.run, opts.config.clone(), device)?;
+    if let Some(init) = &opts.init {
+        if trainer.state.step > 0 {
+            return Err(TrainError::Config(format!(
+                "--init starts a new run, but {} already holds step {}",
+                opts.run.display(),
+                trainer.state.step
+            )));
+        }
+        trainer.init_from(&init.join("ema.safetensors"))?;
+    }
+    let sizes = shard_sizes(&opts.shards)?;
+    let prior = trainer.config.model.mask_prior;
+    let load = |epoch: u64| -> Result<PairData> {
+        let pick = resident_shards(&sizes, opts.resident_pairs, trainer_seed(opts), epoch);
+        let files: Vec<&PathBuf> = pick.iter().map(|&k| &opts.shards[k]).collect();
+        let data = PairData::load(&files)
+            .map_err(|e| TrainError::Config(e.to_string()))?
+            .with_mask_prior(prior);
+        Ok(data)
+    };
+    let every = opts.reshuffle_every;
+    let mut epoch = (trainer.state.step / every) as u64;
+    let mut data = load(epoch)?;
+    if data.resolution() != trainer.config.model.resolution {
+        return Err(TrainError::Config(format!(
+            "pairs are {0}x{0} but the model takes {1}x{1}",
+            data.resolution(),
+            trainer.config.model.resolution
+        )));
+    }
+    let total = trainer.config.steps;
+    while trainer.state.step < total {
+        if (trainer.state.step / every) as u64 != epoch {
+            epoch = (trainer.state.step / every) as u64;
+            data = load(epoch)?;
+        }
+        let r = trainer.step(&data)?;
+        Trainer::log(&opts.run, &r)?;
+        on_step(&trainer, &r);
+        if r.step % trainer.config.checkpoint_every.max(1) == 0 {
+            trainer.checkpoint(&opts.run)?;
+        }
+    }
+    trainer.checkpoint(&opts.run)?;
+    Ok(trainer.state.clone())
+}
+
+fn trainer_seed(opts: &TrainRunOptions) -> u64 {
+    opts.config.seed
 }

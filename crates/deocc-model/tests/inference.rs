@@ -3,8 +3,8 @@
 mod common;
 
 use candle_core::Device;
-use common::{completer_after_one_step, tiny_pairs};
-use deocc_model::config::MaskPrior;
+use common::{completer_after_one_step, completer_after_one_step_of, tiny_pairs};
+use deocc_model::config::{GlDotConfig, MaskPrior, ResidualBase};
 use deocc_model::data::PairData;
 
 #[test]
@@ -12,7 +12,13 @@ fn free_space_constraint_keeps_hidden_pixels_only_where_the_scene_is_in_front() 
     use deocc_model::data::{COND_CHANNELS, DEPTH_SCALE};
     use deocc_model::infer::FREE_SPACE_MARGIN;
     let data = tiny_pairs();
-    let (_dir, mut completer) = completer_after_one_step(&data);
+    // The flow model's constraint: the scene in front of the predicted near side.
+    let flow_only = GlDotConfig {
+        mask_head: false,
+        base: ResidualBase::Visible,
+        ..GlDotConfig::tiny()
+    };
+    let (_dir, mut completer) = completer_after_one_step_of(&data, flow_only);
     // A threshold every score passes, so that only the constraint decides.
     completer.mask_threshold = f32::MIN;
     let idx: Vec<usize> = (0..data.len().min(4)).collect();
@@ -115,4 +121,44 @@ fn pair_data_carries_the_prior_of_the_model_in_channel_6() {
     );
     assert_eq!(channel6(&data), expected);
     assert_eq!(data.condition_prior(0), expected);
+}
+
+/// With a mask head the constraint is the candidate region (not visible, the scene observed in
+/// front of the object's median depth); the head's probabilities lie in [0, 1].
+#[test]
+fn a_mask_head_adds_pixels_only_where_a_hidden_part_can_be() {
+    use deocc_model::data::COND_CHANNELS;
+    let data = tiny_pairs();
+    let (_dir, mut completer) = completer_after_one_step(&data);
+    assert!(completer.model.config.mask_head);
+    completer.mask_threshold = f32::MIN;
+    let idx: Vec<usize> = (0..data.len().min(4)).collect();
+    let (_, cond) = data
+        .batch(&idx, &vec![false; idx.len()], &Device::Cpu)
+        .unwrap();
+    let done = completer.complete(&cond, &[], 0.0, 2, 3).unwrap();
+    let cond = cond.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let n = data.set.pixels();
+    let mut added = 0;
+    for (k, comp) in done.iter().enumerate() {
+        let visible: Vec<bool> = (0..n)
+            .map(|p| cond[(k * n + p) * COND_CHANNELS + 3] > 0.0)
+            .collect();
+        for p in 0..n {
+            let c = &cond[(k * n + p) * COND_CHANNELS..(k * n + p + 1) * COND_CHANNELS];
+            let candidate = c[3] <= 0.0 && c[5] < 0.0;
+            assert_eq!(
+                comp.amodal[p],
+                c[3] > 0.0 || candidate,
+                "pair {k} pixel {p}"
+            );
+            added += (candidate && comp.amodal[p]) as usize;
+        }
+        let plain = comp.clone().into_crop_completion(&visible, true);
+        assert!(plain
+            .mask_probability
+            .iter()
+            .all(|&q| (0.0..=1.0).contains(&q)));
+    }
+    assert!(added > 0);
 }

@@ -4,7 +4,7 @@ mod common;
 
 use candle_core::{Device, Tensor, D};
 use common::{max_abs_diff, model, rng, tiny_pairs};
-use deocc_model::config::{AttentionKind, GlDotConfig, MaskPrior};
+use deocc_model::config::{AttentionKind, GlDotConfig, MaskPrior, ResidualBase};
 use deocc_model::infer::GlDotCompleter;
 use deocc_model::init::randn;
 use deocc_model::model::{patchify, unpatchify};
@@ -29,7 +29,7 @@ fn forward_shapes_for_runnable_presets() {
         );
         let t = Tensor::new(&[0.3f32, 0.9], &Device::Cpu).unwrap();
         let v = m.forward(&x, &t, &c, &tokens).unwrap();
-        assert_eq!(v.dims(), &[2, r, r, cfg.target_channels], "{name}");
+        assert_eq!(v.dims(), &[2, r, r, cfg.out_channels()], "{name}");
         // Zero-initialised final layer: the untrained model predicts exactly zero velocity.
         assert_eq!(
             v.abs()
@@ -80,7 +80,12 @@ fn softmax_attention_switch_builds_and_runs() {
     let v = m
         .forward(&x, &Tensor::new(&[0.5f32], &Device::Cpu).unwrap(), &c, &tok)
         .unwrap();
-    assert_eq!(v.dims(), &[1, 16, 16, cfg.target_channels]);
+    assert_eq!(v.dims(), &[1, 16, 16, cfg.out_channels()]);
+    assert_eq!(
+        cfg.out_channels(),
+        cfg.target_channels + 1,
+        "tiny has a mask head"
+    );
     assert!(v.mean(D::Minus1).is_ok());
 }
 
@@ -94,6 +99,8 @@ fn a_model_grown_by_a_condition_channel_computes_what_the_old_one_did() {
     let old_model = GlDotConfig {
         cond_channels: 5,
         mask_prior: MaskPrior::Visible,
+        base: ResidualBase::Visible,
+        mask_head: false,
         ..GlDotConfig::tiny()
     };
     let cfg = |model: GlDotConfig| TrainConfig {
@@ -111,6 +118,8 @@ fn a_model_grown_by_a_condition_channel_computes_what_the_old_one_did() {
     // ... warm-starts one with every condition channel of today's preset (two zero columns more).
     let grown_model = GlDotConfig {
         mask_prior: MaskPrior::Visible,
+        base: ResidualBase::Visible,
+        mask_head: false,
         ..GlDotConfig::tiny()
     };
     let mut grown = Trainer::open(new_dir.path(), cfg(grown_model), &Device::Cpu).unwrap();
@@ -156,21 +165,145 @@ fn the_residual_starts_from_the_configured_mask_prior() {
             .to_vec1()
             .unwrap()
     };
-    let visible = residual_prior(&cond, MaskPrior::Visible).unwrap();
-    let hull = residual_prior(&cond, MaskPrior::HullInFront).unwrap();
+    let base = ResidualBase::Visible;
+    let visible = residual_prior(&cond, MaskPrior::Visible, base).unwrap();
+    let hull = residual_prior(&cond, MaskPrior::HullInFront, base).unwrap();
     assert_eq!(channel(&visible, 3), channel(&cond, 3));
-    assert_eq!(channel(&hull, 3), channel(&cond, COND_CHANNELS - 1));
+    assert_eq!(channel(&hull, 3), channel(&cond, 6));
     // The prior is a superset of the visible mask, and the pairs have hidden parts it adds.
-    let (v, h) = (channel(&cond, 3), channel(&cond, COND_CHANNELS - 1));
+    let (v, h) = (channel(&cond, 3), channel(&cond, 6));
     assert!(v.iter().zip(&h).all(|(v, h)| *v <= 0.0 || *h > 0.0));
     assert!(v.iter().zip(&h).any(|(v, h)| *v <= 0.0 && *h > 0.0));
     // Everything but the mask is the visible prior in both.
     for c in [0, 1, 2, 4, 5] {
         assert_eq!(channel(&visible, c), channel(&hull, c));
     }
+    // The rules base: the rules completion carried in channels 7-11, the prior's mask.
+    let rules = residual_prior(&cond, MaskPrior::EllipseOrBoxInFront, ResidualBase::Rules).unwrap();
+    for (target, source) in [(0, 7), (1, 8), (2, 9), (3, 6), (4, 10), (5, 11)] {
+        assert_eq!(channel(&rules, target), channel(&cond, source));
+    }
+    assert_eq!(cond.dim(3).unwrap(), COND_CHANNELS);
+    // Inside the prior the rules' near side is the visible depth on visible pixels.
+    let (near, vis_depth) = (channel(&cond, 10), channel(&cond, 4));
+    for ((n, d), v) in near.iter().zip(&vis_depth).zip(&v) {
+        if *v > 0.0 {
+            assert_eq!(n, d);
+        }
+    }
     let too_few = GlDotConfig {
         cond_channels: 6,
+        base: ResidualBase::Visible,
+        mask_head: false,
         ..GlDotConfig::tiny()
     };
     assert!(too_few.validate().unwrap_err().contains("channel 6"));
+    let rules_too_few = GlDotConfig {
+        cond_channels: 7,
+        ..GlDotConfig::tiny()
+    };
+    assert!(rules_too_few.validate().unwrap_err().contains("7-11"));
+}
+
+/// A model grown by the mask head keeps its velocity, and its zero head gives the prior: on
+/// candidate pixels sigmoid(+-PRIOR_LOGIT) as the prior says.
+#[test]
+fn a_model_grown_by_the_mask_head_keeps_its_velocity_and_starts_at_the_prior() {
+    use deocc_model::encode::PRIOR_LOGIT;
+    let data = tiny_pairs();
+    let (old_dir, new_dir) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let no_head = GlDotConfig {
+        mask_head: false,
+        ..GlDotConfig::tiny()
+    };
+    let cfg = |model: GlDotConfig| TrainConfig {
+        model,
+        batch_size: 2,
+        steps: 2,
+        ..TrainConfig::default()
+    };
+    let mut old = Trainer::open(old_dir.path(), cfg(no_head), &Device::Cpu).unwrap();
+    for _ in 0..2 {
+        old.step(&data).unwrap();
+    }
+    old.checkpoint(old_dir.path()).unwrap();
+    let mut grown = Trainer::open(new_dir.path(), cfg(GlDotConfig::tiny()), &Device::Cpu).unwrap();
+    grown
+        .init_from(&old_dir.path().join("ema.safetensors"))
+        .unwrap();
+    grown.checkpoint(new_dir.path()).unwrap();
+    let (_, cond) = data.batch(&[0, 1], &[false, false], &Device::Cpu).unwrap();
+    let a = GlDotCompleter::from_dir(old_dir.path(), &Device::Cpu)
+        .unwrap()
+        .complete(&cond, &[], 0.0, 2, 7)
+        .unwrap();
+    let b = GlDotCompleter::from_dir(new_dir.path(), &Device::Cpu)
+        .unwrap()
+        .complete(&cond, &[], 0.0, 2, 7)
+        .unwrap();
+    let c: Vec<f32> = cond.flatten_all().unwrap().to_vec1().unwrap();
+    let cc = deocc_model::encode::COND_CHANNELS;
+    let (on, off) = (
+        1.0 / (1.0 + (-PRIOR_LOGIT).exp()),
+        1.0 / (1.0 + PRIOR_LOGIT.exp()),
+    );
+    let mut candidates = 0;
+    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+        let d = x
+            .depth_rel
+            .iter()
+            .zip(&y.depth_rel)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0f32, f32::max);
+        assert!(d < 1e-4, "grown model's depth differs by {d}");
+        assert_eq!(x.rgb, y.rgb);
+        let n = y.mask_score.len();
+        for (p, &score) in y.mask_score.iter().enumerate() {
+            let ch = &c[(k * n + p) * cc..(k * n + p + 1) * cc];
+            if ch[3] <= 0.0 && ch[5] < 0.0 {
+                candidates += 1;
+                let expected = if ch[6] > 0.0 { on } else { off };
+                assert!((score - expected).abs() < 1e-5, "pixel {p}: {score}");
+            }
+        }
+    }
+    assert!(candidates > 0);
+}
+
+/// The mask head's loss: finite, lower for logits that agree with the target, and its gradient
+/// finite even for saturated logits.
+#[test]
+fn mask_head_loss_prefers_the_right_mask() {
+    use candle_core::Var;
+    use deocc_model::train::mask_head_loss;
+    let data = tiny_pairs();
+    let (target, cond) = data.batch(&[0, 1], &[false, false], &Device::Cpu).unwrap();
+    let mask = target.narrow(3, 3, 1).unwrap(); // +-1
+    let prior = cond.narrow(3, 6, 1).unwrap();
+    let prior_logit = (prior * f64::from(deocc_model::encode::PRIOR_LOGIT)).unwrap();
+    // A head that turns the logit into +-8 where the truth says: the right mask.
+    let right = ((mask.clone() * 8.0).unwrap() - &prior_logit).unwrap();
+    let wrong = ((mask * -8.0).unwrap() - &prior_logit).unwrap();
+    let l_right = mask_head_loss(&right, &cond, &target)
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+    let l_wrong = mask_head_loss(&wrong, &cond, &target)
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+    assert!(l_right.is_finite() && l_wrong.is_finite());
+    assert!(l_right < 0.1 && l_wrong > 5.0, "{l_right} vs {l_wrong}");
+    let saturated = Var::from_tensor(&(wrong * 100.0).unwrap()).unwrap();
+    let loss = mask_head_loss(saturated.as_tensor(), &cond, &target).unwrap();
+    let grads = loss.backward().unwrap();
+    let g: Vec<f32> = grads
+        .get(&saturated)
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    assert!(g.iter().all(|v| v.is_finite()));
+    assert!(g.iter().any(|&v| v != 0.0));
 }

@@ -279,6 +279,7 @@ impl Split {
             views: PairConfig::default().views_per_scene,
             camera_path: CameraPath::Arc,
             held_out_shapes: self == Split::Test,
+            extra_families: true,
             ..SceneConfig::default()
         }
     }

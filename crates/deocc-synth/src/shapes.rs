@@ -27,6 +27,16 @@ pub enum Category {
     Vase,
     LBracket,
     UserMesh,
+    /// A T-shaped block (a stem under a crossbar): non-convex.
+    TBracket,
+    /// A U-shaped channel standing upright: non-convex, with a gap between its arms.
+    UChannel,
+    /// A picture frame standing upright: a hollow rectangle.
+    Frame,
+    /// A stool: a round or square seat on three or four legs, table-top scale.
+    Stool,
+    /// A small table: a top on four legs, table-top scale (the chair-legs case in miniature).
+    MiniTable,
 }
 
 impl Category {
@@ -57,6 +67,11 @@ impl Category {
             Category::Vase => "vase",
             Category::LBracket => "l_bracket",
             Category::UserMesh => "user_mesh",
+            Category::TBracket => "t_bracket",
+            Category::UChannel => "u_channel",
+            Category::Frame => "frame",
+            Category::Stool => "stool",
+            Category::MiniTable => "mini_table",
         }
     }
 
@@ -71,6 +86,44 @@ impl Category {
         Category::Jar,
     ];
     pub const TABLETOP_HELD_OUT: [Category; 2] = [Category::Vase, Category::LBracket];
+    /// Training families whose silhouettes the geometric priors get wrong (holes, gaps, legs,
+    /// non-convex outlines); in scenes with `SceneConfig::extra_families` (the pair splits).
+    pub const TABLETOP_EXTRA: [Category; 5] = [
+        Category::TBracket,
+        Category::UChannel,
+        Category::Frame,
+        Category::Stool,
+        Category::MiniTable,
+    ];
+
+    /// Every category, in declaration order (the order of the `u8` codes in pair shards).
+    pub const ALL: [Category; 20] = [
+        Category::Floor,
+        Category::Wall,
+        Category::Table,
+        Category::Chair,
+        Category::Shelf,
+        Category::Box,
+        Category::Bottle,
+        Category::Mug,
+        Category::Bowl,
+        Category::Can,
+        Category::Book,
+        Category::Jar,
+        Category::Vase,
+        Category::LBracket,
+        Category::UserMesh,
+        Category::TBracket,
+        Category::UChannel,
+        Category::Frame,
+        Category::Stool,
+        Category::MiniTable,
+    ];
+
+    /// The category of a `u8` code of a pair shard.
+    pub fn from_code(code: u8) -> Option<Category> {
+        Self::ALL.get(code as usize).copied()
+    }
 }
 
 /// A built shape: mesh in its own frame plus the radius of its footprint (for placement).
@@ -331,6 +384,111 @@ pub fn tabletop(category: Category, r: &mut impl Rng) -> Shape {
                 footprint_radius: (w * w + d * d).sqrt() / 2.0,
                 height: h,
                 mesh: m,
+            }
+        }
+        Category::TBracket => {
+            let (w, d, h) = (u(r, 0.10, 0.22), u(r, 0.04, 0.08), u(r, 0.12, 0.24));
+            let (t, stem) = (u(r, 0.025, 0.05), u(r, 0.025, 0.05));
+            let m = TriMesh::merged(&[
+                cuboid(
+                    Point3::new(-stem / 2.0, -d / 2.0, 0.0),
+                    Point3::new(stem / 2.0, d / 2.0, h - t),
+                ),
+                cuboid(
+                    Point3::new(-w / 2.0, -d / 2.0, h - t),
+                    Point3::new(w / 2.0, d / 2.0, h),
+                ),
+            ]);
+            Shape {
+                footprint_radius: (w * w + d * d).sqrt() / 2.0,
+                height: h,
+                mesh: m,
+            }
+        }
+        Category::UChannel => {
+            let (w, d, h) = (u(r, 0.10, 0.22), u(r, 0.04, 0.08), u(r, 0.10, 0.22));
+            let t = u(r, 0.02, 0.04);
+            let m = TriMesh::merged(&[
+                cuboid(
+                    Point3::new(-w / 2.0, -d / 2.0, 0.0),
+                    Point3::new(w / 2.0, d / 2.0, t),
+                ),
+                cuboid(
+                    Point3::new(-w / 2.0, -d / 2.0, t),
+                    Point3::new(-w / 2.0 + t, d / 2.0, h),
+                ),
+                cuboid(
+                    Point3::new(w / 2.0 - t, -d / 2.0, t),
+                    Point3::new(w / 2.0, d / 2.0, h),
+                ),
+            ]);
+            Shape {
+                footprint_radius: (w * w + d * d).sqrt() / 2.0,
+                height: h,
+                mesh: m,
+            }
+        }
+        Category::Frame => {
+            // Upright in the x-z plane, thin in y, on a small foot so it stands.
+            let (w, h, d) = (u(r, 0.12, 0.26), u(r, 0.12, 0.26), u(r, 0.015, 0.03));
+            let t = u(r, 0.015, 0.035);
+            let m = TriMesh::merged(&[
+                cuboid(
+                    Point3::new(-w / 2.0, -d / 2.0, 0.0),
+                    Point3::new(w / 2.0, d / 2.0, t),
+                ),
+                cuboid(
+                    Point3::new(-w / 2.0, -d / 2.0, h - t),
+                    Point3::new(w / 2.0, d / 2.0, h),
+                ),
+                cuboid(
+                    Point3::new(-w / 2.0, -d / 2.0, t),
+                    Point3::new(-w / 2.0 + t, d / 2.0, h - t),
+                ),
+                cuboid(
+                    Point3::new(w / 2.0 - t, -d / 2.0, t),
+                    Point3::new(w / 2.0, d / 2.0, h - t),
+                ),
+                cuboid(
+                    Point3::new(-w / 4.0, -2.0 * d, 0.0),
+                    Point3::new(w / 4.0, 2.0 * d, t / 2.0),
+                ),
+            ]);
+            Shape {
+                footprint_radius: (w * w + 16.0 * d * d).sqrt() / 2.0,
+                height: h,
+                mesh: m,
+            }
+        }
+        Category::Stool | Category::MiniTable => {
+            let mini_table = category == Category::MiniTable;
+            let (w, d) = if mini_table {
+                (u(r, 0.12, 0.26), u(r, 0.10, 0.20))
+            } else {
+                let s = u(r, 0.08, 0.16);
+                (s, s)
+            };
+            let h = u(r, 0.08, 0.2);
+            let (top, leg) = (u(r, 0.012, 0.025), u(r, 0.008, 0.016));
+            let mut parts = vec![if !mini_table && r.random_bool(0.5) {
+                cylinder(w / 2.0, top, h - top, SEG)
+            } else {
+                box_on(Vector3::new(w, d, top), (0.0, 0.0), h - top)
+            }];
+            let legs: &[(f32, f32)] = if !mini_table && r.random_bool(0.4) {
+                &[(0.0, -1.0), (-0.87, 0.5), (0.87, 0.5)]
+            } else {
+                &[(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+            };
+            let inset = 0.75;
+            for &(sx, sy) in legs {
+                let c = (sx * inset * (w - leg) / 2.0, sy * inset * (d - leg) / 2.0);
+                parts.push(box_on(Vector3::new(leg, leg, h - top), c, 0.0));
+            }
+            Shape {
+                footprint_radius: (w * w + d * d).sqrt() / 2.0,
+                height: h,
+                mesh: TriMesh::merged(&parts),
             }
         }
         other => panic!("{other:?} is not a tabletop category"),

@@ -112,9 +112,17 @@ pub fn tiny_pairs() -> PairData {
 /// A tiny model trained one step on `data`, loaded back as a completer (the run directory is
 /// returned to keep it alive).
 pub fn completer_after_one_step(data: &PairData) -> (tempfile::TempDir, GlDotCompleter) {
+    completer_after_one_step_of(data, GlDotConfig::tiny())
+}
+
+/// [`completer_after_one_step`] of another model configuration.
+pub fn completer_after_one_step_of(
+    data: &PairData,
+    model: GlDotConfig,
+) -> (tempfile::TempDir, GlDotCompleter) {
     let dir = tempfile::tempdir().unwrap();
     let cfg = TrainConfig {
-        model: GlDotConfig::tiny(),
+        model,
         batch_size: 2,
         steps: 1,
         ..TrainConfig::default()
