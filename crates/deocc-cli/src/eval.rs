@@ -6,7 +6,6 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use deocc_eval::amodal::{evaluate_amodal, AmodalEvalOptions};
 use deocc_model::data::{shards, PairData};
-use deocc_model::infer::GlDotCompleter;
 use deocc_synth::pairs::{split_scene_pairs, PairConfig, PairSet, Split};
 
 #[derive(Subcommand)]
@@ -219,26 +218,32 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
 pub struct AmodalArgs {
     #[arg(long, default_value = "bench/amodal.json")]
     json: PathBuf,
-    /// Model folder (train.json + ema.safetensors or model.safetensors).
-    #[arg(long, default_value = "weights/gldot-small")]
-    weights: PathBuf,
-    /// Folder with test-*.safetensors shards; without it, test pairs are rendered on the fly.
+    /// GL-DoT model folder (train.json + ema.safetensors or model.safetensors). Default: the
+    /// shipped model built into this binary.
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// Folder with {split}-*.safetensors shards; without it, test pairs are rendered on the fly
+    /// from the first 120 test scenes (the same pairs `deocc synth pairs --split test --scenes
+    /// 120` writes).
     #[arg(long)]
     data: Option<PathBuf>,
-    /// Number of test pairs.
-    #[arg(long, default_value_t = 120)]
-    pairs: usize,
-    /// Step counts to evaluate, comma-separated.
-    #[arg(long, default_value = "1,2,4,8,50", value_delimiter = ',')]
-    steps: Vec<usize>,
-    /// The step count of the per-level, held-out-shape, cross-view and depth figures.
+    /// Evaluate only the first N pairs (default: the whole split).
+    #[arg(long)]
+    pairs: Option<usize>,
+    /// The step count of every figure but the step sweep.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=1000))]
     main_steps: u32,
+    /// Step counts of the sweep, comma-separated (run on the first --sweep-pairs pairs).
+    #[arg(long, default_value = "1,4,50", value_delimiter = ',')]
+    sweep_steps: Vec<usize>,
+    #[arg(long, default_value_t = 300)]
+    sweep_pairs: usize,
     /// Which shards of --data to use: test (held-out, the reported figures) or val (for choosing
     /// the mask threshold).
     #[arg(long, default_value = "test")]
     split: String,
-    /// Also report the main-steps mIoU at these mask thresholds (in [-1, 1]), comma-separated.
+    /// Also report the main-steps mIoU at these mask thresholds, comma-separated (a probability
+    /// for models with a mask head, the mask channel in [-1, 1] otherwise).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     mask_thresholds: Vec<f32>,
     /// Override the model's mask threshold (from its train.json) for every figure.
@@ -250,6 +255,12 @@ pub struct AmodalArgs {
     /// Override whether the geometric prior's pixels are always kept (from its train.json).
     #[arg(long)]
     keep_prior: Option<bool>,
+    /// Skip the cross-view run (about half the time).
+    #[arg(long)]
+    no_cross_view: bool,
+    /// Bootstrap resamples of every interval.
+    #[arg(long, default_value_t = 1000)]
+    bootstrap: usize,
 }
 
 pub fn run(cmd: EvalCommand) -> Result<()> {
@@ -261,8 +272,8 @@ pub fn run(cmd: EvalCommand) -> Result<()> {
 }
 
 /// Evaluation pairs: from a split's shards if given, else rendered from the test split's first
-/// scenes.
-fn test_pairs(data: Option<&PathBuf>, split: &str, want: usize) -> Result<PairData> {
+/// `scenes` scenes.
+fn test_pairs(data: Option<&PathBuf>, split: &str, scenes: u64) -> Result<PairData> {
     if let Some(dir) = data {
         let files = shards(dir, split)
             .with_context(|| format!("{}: cannot list {split} pairs", dir.display()))?;
@@ -276,32 +287,24 @@ fn test_pairs(data: Option<&PathBuf>, split: &str, want: usize) -> Result<PairDa
         return Ok(PairData::load(&files)?);
     }
     let mut set = PairSet::default();
-    let mut scene = 0;
-    while set.len() < want && scene < 10_000 {
+    for scene in 0..scenes {
         set.extend(&split_scene_pairs(
             Split::Test,
             scene,
             &PairConfig::default(),
         )?);
-        scene += 1;
     }
     Ok(PairData::new(set))
 }
 
 fn amodal(a: AmodalArgs) -> Result<()> {
-    if !a.weights.join("train.json").exists() {
-        bail!(
-            "{}: no train.json; give --weights a run directory or the shipped weights/gldot-small",
-            a.weights.display()
-        );
-    }
     if a.split != "test" && a.split != "val" {
         bail!("--split must be test or val, not '{}'", a.split);
     }
     if a.split == "val" && a.data.is_none() {
         bail!("--split val needs --data (a folder with val-*.safetensors shards)");
     }
-    let mut completer = GlDotCompleter::from_dir(&a.weights, &candle_core::Device::Cpu)?;
+    let mut completer = crate::completers::load_gldot(a.weights.as_deref())?;
     if let Some(th) = a.mask_threshold {
         completer.mask_threshold = th;
     }
@@ -311,28 +314,42 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     if let Some(keep) = a.keep_prior {
         completer.keep_prior = keep;
     }
-    let data = test_pairs(a.data.as_ref(), &a.split, a.pairs)?
+    let data = test_pairs(a.data.as_ref(), &a.split, 120)?
         .with_mask_prior(completer.model.config.mask_prior);
     if data.resolution() != completer.resolution() {
         bail!(
-            "test pairs are {0}x{0} but the model expects {1}x{1}",
+            "{} pairs are {0}x{0} but the model expects {1}x{1}",
             data.resolution(),
-            completer.resolution()
+            completer.resolution(),
         );
+    }
+    if a.bootstrap == 0 {
+        bail!("--bootstrap must be at least 1");
     }
     let opts = AmodalEvalOptions {
         pairs: a.pairs,
-        steps: a.steps.clone(),
-        mask_thresholds: a.mask_thresholds.clone(),
         main_steps: a.main_steps as usize,
+        sweep_steps: a.sweep_steps.clone(),
+        sweep_pairs: a.sweep_pairs,
+        mask_thresholds: a.mask_thresholds.clone(),
+        bootstrap_resamples: a.bootstrap,
+        skip_cross_view: a.no_cross_view,
         ..AmodalEvalOptions::default()
     };
-    eprintln!(
-        "evaluating {} test pairs at steps {:?}",
-        opts.pairs.min(data.len()),
-        opts.steps
-    );
-    let report = evaluate_amodal(&completer, &data, &opts)?;
+    let n = opts.pairs.unwrap_or(data.len()).min(data.len());
+    let multi = if a.no_cross_view { 0 } else { n };
+    let sweep: usize = opts
+        .sweep_steps
+        .iter()
+        .filter(|&&s| s != opts.main_steps)
+        .count()
+        * opts.sweep_pairs.min(n);
+    eprintln!("evaluating {n} {} pairs", a.split);
+    let pb = crate::progress::bar((n + multi + sweep) as u64, "completions");
+    let report = evaluate_amodal(&completer, &data, &a.split, &opts, &mut |k| {
+        pb.inc(k as u64)
+    })?;
+    pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())
 }

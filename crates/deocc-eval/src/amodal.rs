@@ -1,76 +1,112 @@
 //! 2-D amodal completion on held-out pairs: the figures of `deocc eval amodal`.
+//!
+//! Every pair of the split is completed once by GL-DoT (at `main_steps`) and once by the rules
+//! completer, and scored against the renderer's ground truth. Every model figure stands beside the
+//! strongest non-learned baseline on the same pairs (the geometric prior for the silhouette, the
+//! nearest visible colour, the plane through the visible near side, the symmetric far side), as
+//! a paired difference with a 95% interval from a bootstrap over objects (the views of one object
+//! are resampled together).
 
 use std::collections::BTreeMap;
 use std::time::Instant;
 
 use candle_core::Tensor;
+use deocc_completion::rules::{nearest_seed, nearest_visible_colour, RulesCompleter};
+use deocc_completion::{CropCompletion, CropCondition};
+use deocc_geometry::mask2d::{convex_hull_mask, iou};
 use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
 use deocc_model::data::PairData;
 use deocc_model::infer::{Completion, GlDotCompleter};
+use deocc_synth::shapes::Category;
 use serde::Serialize;
 
-use crate::masks::{convex_hull_mask, iou};
+use crate::stats::{compare, mean, roc_auc, Comparison};
+use crate::EvalError;
 
 #[derive(Debug, Clone)]
 pub struct AmodalEvalOptions {
-    /// Pairs evaluated (the first N of the test set).
-    pub pairs: usize,
-    pub steps: Vec<usize>,
-    /// The step count of the per-level, cross-view and depth figures.
+    /// Pairs evaluated: the first N of the split; `None` = all.
+    pub pairs: Option<usize>,
+    /// The step count of every figure but the step sweep.
     pub main_steps: usize,
+    /// Step counts of the sweep (four against fifty), on the first `sweep_pairs` pairs.
+    pub sweep_steps: Vec<usize>,
+    pub sweep_pairs: usize,
     pub rho: f32,
     pub batch: usize,
     pub seed: u64,
-    /// Mask thresholds to report the main-steps mIoU at (the completer's own is always used for
-    /// every other figure).
+    /// Mask thresholds to report the model's main-steps mIoU at (choosing the shipped one on val).
     pub mask_thresholds: Vec<f32>,
+    pub bootstrap_resamples: usize,
+    /// Skip the cross-view run (half the time).
+    pub skip_cross_view: bool,
 }
 
 impl Default for AmodalEvalOptions {
     fn default() -> Self {
         Self {
-            pairs: 120,
-            steps: vec![1, 2, 4, 8, 50],
+            pairs: None,
             main_steps: 4,
+            sweep_steps: vec![1, 4, 50],
+            sweep_pairs: 300,
             rho: 0.5,
             batch: 16,
             seed: 0,
             mask_thresholds: Vec::new(),
+            bootstrap_resamples: 1000,
+            skip_cross_view: false,
         }
     }
 }
 
+/// A group of pairs: the model's and the prior's mIoU with the paired interval.
 #[derive(Debug, Clone, Serialize)]
-pub struct GroupFigures {
+pub struct GroupRow {
     pub pairs: usize,
     pub miou_model: f64,
-    pub miou_visible: f64,
-    pub miou_convex_hull: f64,
+    pub miou_prior: f64,
+    pub miou_hull: f64,
+    pub model_minus_prior: Comparison,
 }
 
 #[derive(Debug, Clone, Serialize)]
-pub struct CrossViewFigures {
+pub struct ChairLegs {
+    /// The paper's Table 4 rule: chairs whose amodal box's bottom 40% is at least 30% hidden.
     pub pairs: usize,
-    pub miou_rho_0: f64,
-    pub miou_rho: f64,
-    pub rho: f32,
-    pub gain: f64,
+    pub miou: Comparison,
+    /// IoU inside the bottom 40% of the amodal box (the legs).
+    pub bottom_region_iou: Comparison,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CandidateAuc {
+    /// Candidate pixels (not visible, the scene in front of the object): where a completer
+    /// chooses.
+    pub pixels: usize,
+    pub object_fraction: f64,
+    /// Ranked by the model's mask score.
+    pub model: f64,
+    /// Ranked by closeness to the geometric prior (inside it first, then by distance).
+    pub distance_to_prior: f64,
 }
 
 #[derive(Debug, Clone, Serialize)]
 pub struct DepthFigures {
+    /// Near side on the hidden part (amodal minus visible), after each completer's Huber fit to
+    /// the visible depth; crop widths. Baseline: the plane through the visible near side.
+    pub near_hidden: Comparison,
+    /// Far side over the whole amodal mask. Baseline: the symmetric far side.
+    pub far: Comparison,
+    pub near_hidden_bottles_vases: Comparison,
+    pub far_bottles_vases: Comparison,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct StepSweep {
     pub pairs: usize,
-    /// Mean absolute error of relative depth on the hidden part (amodal minus visible) after the
-    /// Huber fit of the prediction to the visible depth. Units: crop widths.
-    pub mae_hidden_model: f64,
-    /// The same with the hidden part filled with the median visible depth.
-    pub mae_hidden_median_baseline: f64,
-    /// Mean absolute error of the far side's relative depth (the object's back) over the whole
-    /// amodal mask, after the same fit.
-    pub mae_back_model: f64,
-    /// The same for a zero-thickness baseline (back = observed near side on visible pixels,
-    /// median visible depth elsewhere).
-    pub mae_back_thin_baseline: f64,
+    pub miou_by_steps: BTreeMap<usize, f64>,
+    /// The main step count against the largest of the sweep.
+    pub main_vs_most: Option<Comparison>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -78,72 +114,83 @@ pub struct SpeedFigures {
     pub steps: usize,
     pub completions_per_second_batch_1: f64,
     pub completions_per_second_batch_8: f64,
-    pub threads: usize,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ModelFacts {
+    pub mask_head: bool,
+    pub base: deocc_model::config::ResidualBase,
+    pub mask_prior: deocc_completion::MaskPrior,
+    pub mask_threshold: f32,
+    pub keep_prior: bool,
+    pub samples_per_completion: usize,
 }
 
 #[derive(Debug, Clone, Serialize)]
 pub struct AmodalReport {
+    pub split: String,
     pub pairs: usize,
+    pub objects: usize,
     pub resolution: usize,
-    /// mIoU of the predicted amodal mask per number of sampling steps.
-    pub miou_by_steps: BTreeMap<usize, f64>,
-    pub miou_baseline_visible: f64,
-    pub miou_baseline_convex_hull: f64,
-    /// The convex hull kept only where the observed scene is in front of the object (where it is
-    /// behind, the object would be seen): a free-space-aware geometric baseline.
-    pub miou_baseline_convex_hull_in_front: f64,
-    /// The ellipse prior ([`deocc_model::data::ellipse_prior`]), also without a model.
-    pub miou_baseline_ellipse_in_front: f64,
-    /// The geometric prior the model was trained on (its condition channel 6), without a model:
-    /// the figure the model's mask has to beat to be worth its cost.
-    pub mask_prior: deocc_model::config::MaskPrior,
-    pub miou_baseline_model_prior: f64,
-    /// The model's mask (main steps) united with that baseline.
-    pub miou_model_or_hull_in_front: f64,
-    /// Whether the completer applied its free-space constraint, and the main-steps mIoU with it
-    /// switched off (the model's raw mask).
-    pub free_space_constraint: bool,
-    pub miou_main_steps_without_free_space: f64,
     pub main_steps: usize,
-    /// The completer's mask threshold, and the main-steps mIoU at other thresholds.
-    pub mask_threshold: f32,
-    /// Samples averaged per completion (every figure above).
-    pub samples_per_completion: usize,
-    /// Whether the completer keeps every prior pixel (the model only adds).
-    pub keep_prior: bool,
-    pub miou_by_mask_threshold: BTreeMap<String, f64>,
-    /// Figures at `main_steps`, by occlusion level (light: 10-40% hidden, heavy: over 40%).
-    pub light: GroupFigures,
-    pub heavy: GroupFigures,
-    pub held_out_shapes: GroupFigures,
-    pub cross_view: CrossViewFigures,
+    pub model: ModelFacts,
+    pub miou_model: f64,
+    pub miou_prior: f64,
+    pub miou_rules: f64,
+    pub miou_visible: f64,
+    pub miou_convex_hull: f64,
+    /// The model's mask against the geometric prior (= the rules completer's mask).
+    pub mask_vs_prior: Comparison,
+    pub by_occlusion: BTreeMap<String, GroupRow>,
+    pub by_category: BTreeMap<String, GroupRow>,
+    pub held_out_families: GroupRow,
+    pub training_categories_above_40: GroupRow,
+    pub chair_legs: ChairLegs,
+    pub candidate_auc: CandidateAuc,
+    /// Hidden colour (mean absolute error per channel, 0-255) against the nearest visible colour.
+    pub hidden_colour: Comparison,
     pub depth: DepthFigures,
+    /// mIoU with cross-view conditioning (rho) against without, on pairs with other views.
+    pub cross_view: Option<Comparison>,
+    pub steps: StepSweep,
+    pub miou_by_mask_threshold: BTreeMap<String, f64>,
     pub speed: SpeedFigures,
 }
 
-fn mean(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
-    if n == 0 {
-        f64::NAN
-    } else {
-        s / n as f64
-    }
+/// What one pair scores.
+#[derive(Debug, Clone, Default)]
+struct PairScores {
+    iou_model: f64,
+    iou_prior: f64,
+    iou_rules: f64,
+    iou_visible: f64,
+    iou_hull: f64,
+    chair_legs: bool,
+    bottom_model: f64,
+    bottom_prior: f64,
+    colour_model: f64,
+    colour_rules: f64,
+    near_model: f64,
+    near_rules: f64,
+    far_model: f64,
+    far_rules: f64,
 }
 
-fn complete_all(
+/// Completes `idx` with GL-DoT at `steps`, cross-view conditioned with `rho` on every other view
+/// of the object in the split.
+fn complete_model(
     c: &GlDotCompleter,
     data: &PairData,
     idx: &[usize],
     steps: usize,
     rho: f32,
     opts: &AmodalEvalOptions,
-    free_space: bool,
-) -> candle_core::Result<Vec<Completion>> {
+    tick: &mut dyn FnMut(usize),
+) -> Result<Vec<Completion>, EvalError> {
     let mut out = Vec::with_capacity(idx.len());
     let dev = c.device.clone();
     for chunk in idx.chunks(opts.batch.max(1)) {
-        let flips = vec![false; chunk.len()];
-        let (_, cond) = data.batch(chunk, &flips, &dev)?;
+        let (_, cond) = data.batch(chunk, &vec![false; chunk.len()], &dev)?;
         let others: Vec<Vec<Tensor>> = if rho > 0.0 {
             chunk
                 .iter()
@@ -158,225 +205,431 @@ fn complete_all(
             Vec::new()
         };
         out.extend(
-            c.complete_with(&cond, &others, rho, steps, opts.seed, free_space)
-                .map_err(|e| candle_core::Error::msg(e.to_string()))?,
+            c.complete(&cond, &others, rho, steps, opts.seed)
+                .map_err(|e| EvalError::Model(e.to_string()))?,
         );
+        tick(chunk.len());
     }
     Ok(out)
 }
 
-fn mask_of(m: &[u8]) -> Vec<bool> {
-    m.iter().map(|&v| v > 0).collect()
+/// Mean absolute error of the near side on `hidden` pixels and of the far side on `amodal`
+/// pixels, after the Huber fit of `near` to the visible depth; `None` when it cannot be fitted.
+fn depth_errors(
+    near: &[f32],
+    far: &[f32],
+    visible: &[usize],
+    hidden: &[usize],
+    amodal: &[usize],
+    obs: &[f32],
+    truth_near: &[f32],
+    truth_far: &[f32],
+) -> Option<(f64, f64)> {
+    let x: Vec<f32> = visible.iter().map(|&p| near[p]).collect();
+    let y: Vec<f32> = visible.iter().map(|&p| obs[p]).collect();
+    let fit = huber_affine_fit(&x, &y, &HuberOptions::default()).ok()?;
+    let near_err = mean(
+        hidden
+            .iter()
+            .map(|&p| (fit.apply(near[p] as f64) - truth_near[p] as f64).abs()),
+    );
+    let far_err = mean(
+        amodal
+            .iter()
+            .map(|&p| (fit.apply(far[p] as f64) - truth_far[p] as f64).abs()),
+    );
+    Some((near_err, far_err))
 }
 
-/// Runs the whole evaluation.
+fn colour_error(rgb: &[u8], truth: &[u8], hidden: &[usize]) -> f64 {
+    mean(hidden.iter().map(|&p| {
+        (0..3)
+            .map(|c| (rgb[3 * p + c] as f64 - truth[3 * p + c] as f64).abs())
+            .sum::<f64>()
+            / 3.0
+    }))
+}
+
+/// The chair-legs rule and the bottom region: rows in the bottom 40% of the amodal box, and
+/// whether at least 30% of the object there is hidden.
+fn bottom_region(truth: &[bool], visible: &[bool], r: usize) -> (Vec<bool>, bool) {
+    let rows: Vec<usize> = (0..r)
+        .filter(|&v| truth[v * r..(v + 1) * r].iter().any(|&t| t))
+        .collect();
+    let (Some(&v0), Some(&v1)) = (rows.first(), rows.last()) else {
+        return (vec![false; r * r], false);
+    };
+    let start = v1 + 1 - ((v1 + 1 - v0) as f64 * 0.4).ceil() as usize;
+    let region: Vec<bool> = (0..r * r).map(|p| p / r >= start).collect();
+    let (mut object, mut hidden) = (0usize, 0usize);
+    for p in (0..r * r).filter(|&p| region[p] && truth[p]) {
+        object += 1;
+        hidden += !visible[p] as usize;
+    }
+    let legs = object > 0 && hidden as f64 >= 0.3 * object as f64;
+    (region, legs)
+}
+
+fn masked_iou(a: &[bool], b: &[bool], region: &[bool]) -> f64 {
+    let a: Vec<bool> = a.iter().zip(region).map(|(&x, &r)| x && r).collect();
+    let b: Vec<bool> = b.iter().zip(region).map(|(&x, &r)| x && r).collect();
+    iou(&a, &b)
+}
+
+fn category_name(code: u8) -> String {
+    Category::from_code(code)
+        .map(|c| c.name().to_string())
+        .unwrap_or_else(|| format!("category_{code}"))
+}
+
+/// Runs the whole evaluation on the first `opts.pairs` pairs of `data` (the `split` named in the
+/// report). `tick` is told how many completions were made.
 pub fn evaluate_amodal(
     c: &GlDotCompleter,
     data: &PairData,
+    split: &str,
     opts: &AmodalEvalOptions,
-) -> candle_core::Result<AmodalReport> {
-    let n = opts.pairs.min(data.len());
+    tick: &mut dyn FnMut(usize),
+) -> Result<AmodalReport, EvalError> {
+    let n = opts.pairs.unwrap_or(data.len()).min(data.len());
+    if n == 0 {
+        return Err(EvalError::Data("no pairs to evaluate".into()));
+    }
     let idx: Vec<usize> = (0..n).collect();
     let r = data.resolution();
-    let truth: Vec<Vec<bool>> = idx.iter().map(|&i| mask_of(data.amodal_mask(i))).collect();
-    let visible: Vec<Vec<bool>> = idx.iter().map(|&i| mask_of(data.visible_mask(i))).collect();
-    let iou_visible: Vec<f64> = (0..n).map(|k| iou(&visible[k], &truth[k])).collect();
-    let hulls: Vec<Vec<bool>> = (0..n).map(|k| convex_hull_mask(&visible[k], r)).collect();
-    let iou_hull: Vec<f64> = (0..n).map(|k| iou(&hulls[k], &truth[k])).collect();
-    let hull_in_front: Vec<Vec<bool>> = idx.iter().map(|&i| data.hull_prior(i)).collect();
-    let ellipse_in_front: Vec<Vec<bool>> = idx.iter().map(|&i| data.ellipse_prior(i)).collect();
-    let model_prior: Vec<Vec<bool>> = idx.iter().map(|&i| data.condition_prior(i)).collect();
+    let set = &data.set;
+    let groups: Vec<u32> = idx.iter().map(|&i| set.group[i]).collect();
+    let rules = RulesCompleter {
+        resolution: r,
+        ..RulesCompleter::default()
+    };
+    let conds: Vec<CropCondition> = idx.iter().map(|&i| data.condition(i)).collect();
+    let rules_out: Vec<CropCompletion> = conds.iter().map(|c| rules.complete_one(c)).collect();
+    let model_out = complete_model(c, data, &idx, opts.main_steps, 0.0, opts, tick)?;
 
-    let mut miou_by_steps = BTreeMap::new();
-    let mut main: Option<(Vec<f64>, Vec<Completion>)> = None;
-    for &s in &opts.steps {
-        let comp = complete_all(c, data, &idx, s, 0.0, opts, c.free_space)?;
-        let ious: Vec<f64> = (0..n).map(|k| iou(&comp[k].amodal, &truth[k])).collect();
-        miou_by_steps.insert(s, mean(ious.iter().copied()));
-        if s == opts.main_steps {
-            main = Some((ious, comp));
+    let mut scores = Vec::with_capacity(n);
+    let (mut cand_scores, mut cand_dist, mut cand_labels) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, &i) in idx.iter().enumerate() {
+        let cond = &conds[k];
+        let truth: Vec<bool> = data.amodal_mask(i).iter().map(|&m| m > 0).collect();
+        let vis = &cond.visible;
+        let model = &model_out[k];
+        let rule = &rules_out[k];
+        let (region, legs) = bottom_region(&truth, vis, r);
+        let visible_px: Vec<usize> = (0..r * r).filter(|&p| vis[p]).collect();
+        let hidden: Vec<usize> = (0..r * r).filter(|&p| truth[p] && !vis[p]).collect();
+        let amodal: Vec<usize> = (0..r * r).filter(|&p| truth[p]).collect();
+        let mut s = PairScores {
+            iou_model: iou(&model.amodal, &truth),
+            iou_prior: iou(&cond.prior, &truth),
+            iou_rules: iou(&rule.amodal, &truth),
+            iou_visible: iou(vis, &truth),
+            iou_hull: iou(&convex_hull_mask(vis, r), &truth),
+            chair_legs: legs && set.category[i] == Category::Chair as u8,
+            bottom_model: masked_iou(&model.amodal, &truth, &region),
+            bottom_prior: masked_iou(&cond.prior, &truth, &region),
+            colour_model: f64::NAN,
+            colour_rules: f64::NAN,
+            near_model: f64::NAN,
+            near_rules: f64::NAN,
+            far_model: f64::NAN,
+            far_rules: f64::NAN,
+        };
+        let whole_rgb = &set.whole_rgb[i * r * r * 3..(i + 1) * r * r * 3];
+        if !hidden.is_empty() {
+            s.colour_model = colour_error(&model.rgb, whole_rgb, &hidden);
+            // The nearest visible colour over the whole crop (the rules completer paints it
+            // inside its mask only).
+            let fill = nearest_visible_colour(&cond.rgb, vis, r);
+            s.colour_rules = colour_error(&fill, whole_rgb, &hidden);
         }
+        if hidden.len() >= 5 && visible_px.len() >= 5 {
+            let (obs, tn, tf) = (
+                data.visible_depth(i),
+                data.whole_depth(i),
+                data.whole_back_depth(i),
+            );
+            if let (Some(m), Some(b)) = (
+                depth_errors(
+                    &model.depth_rel,
+                    &model.back_depth_rel,
+                    &visible_px,
+                    &hidden,
+                    &amodal,
+                    obs,
+                    tn,
+                    tf,
+                ),
+                depth_errors(
+                    &rule.depth,
+                    &rule.back_depth,
+                    &visible_px,
+                    &hidden,
+                    &amodal,
+                    obs,
+                    tn,
+                    tf,
+                ),
+            ) {
+                (s.near_model, s.far_model) = m;
+                (s.near_rules, s.far_rules) = b;
+            }
+        }
+        // Candidate pixels: the model's score, and closeness to the prior.
+        let nearest = nearest_seed(&cond.prior, r);
+        for p in (0..r * r).filter(|&p| !vis[p] && cond.scene_depth[p] < 0.0) {
+            cand_scores.push(model.mask_score[p]);
+            let d = match nearest[p] {
+                Some(q) => {
+                    let (du, dv) = (
+                        (p % r) as f32 - (q % r) as f32,
+                        (p / r) as f32 - (q / r) as f32,
+                    );
+                    (du * du + dv * dv).sqrt()
+                }
+                None => r as f32,
+            };
+            cand_dist.push(-d);
+            cand_labels.push(truth[p]);
+        }
+        scores.push(s);
     }
-    let (main_iou, main_comp) = match main {
-        Some(m) => m,
-        None => {
-            let comp = complete_all(c, data, &idx, opts.main_steps, 0.0, opts, c.free_space)?;
-            (
-                (0..n).map(|k| iou(&comp[k].amodal, &truth[k])).collect(),
-                comp,
-            )
+
+    let cmp = |m: &dyn Fn(&PairScores) -> f64,
+               b: &dyn Fn(&PairScores) -> f64,
+               keep: &dyn Fn(usize) -> bool,
+               seed: u64| {
+        let ks: Vec<usize> = (0..n).filter(|&k| keep(k)).collect();
+        compare(
+            &ks.iter().map(|&k| m(&scores[k])).collect::<Vec<_>>(),
+            &ks.iter().map(|&k| b(&scores[k])).collect::<Vec<_>>(),
+            &ks.iter().map(|&k| groups[k]).collect::<Vec<_>>(),
+            opts.bootstrap_resamples,
+            opts.seed ^ seed,
+        )
+    };
+    let group = |keep: &dyn Fn(usize) -> bool, seed: u64| -> GroupRow {
+        let ks: Vec<usize> = (0..n).filter(|&k| keep(k)).collect();
+        GroupRow {
+            pairs: ks.len(),
+            miou_model: mean(ks.iter().map(|&k| scores[k].iou_model)),
+            miou_prior: mean(ks.iter().map(|&k| scores[k].iou_prior)),
+            miou_hull: mean(ks.iter().map(|&k| scores[k].iou_hull)),
+            model_minus_prior: cmp(&|s| s.iou_model, &|s| s.iou_prior, keep, seed),
         }
     };
-    // The same completions without the free-space constraint (same seed, same noise).
-    let miou_main_steps_without_free_space = {
-        let comp = complete_all(c, data, &idx, opts.main_steps, 0.0, opts, false)?;
-        mean((0..n).map(|k| iou(&comp[k].amodal, &truth[k])))
+    let occ = |k: usize| set.occlusion[idx[k]] as f64;
+    let mut by_occlusion = BTreeMap::new();
+    for (name, lo, hi) in [
+        ("0-10%", -1.0, 0.1),
+        ("10-40%", 0.1, 0.4),
+        ("40-70%", 0.4, 0.7),
+        ("70-100%", 0.7, 2.0),
+    ] {
+        by_occlusion.insert(
+            name.to_string(),
+            group(&|k| occ(k) > lo && occ(k) <= hi, 11),
+        );
+    }
+    let mut codes: Vec<u8> = idx.iter().map(|&i| set.category[i]).collect();
+    codes.sort_unstable();
+    codes.dedup();
+    let by_category = codes
+        .iter()
+        .map(|&code| {
+            (
+                category_name(code),
+                group(&|k| set.category[idx[k]] == code, 13),
+            )
+        })
+        .collect();
+    let held = |k: usize| set.held_out[idx[k]] > 0;
+    let is_bottle_vase = |k: usize| {
+        let cat = set.category[idx[k]];
+        cat == Category::Bottle as u8 || cat == Category::Vase as u8
     };
+    let all = |_k: usize| true;
+
+    // Cross-view: the pairs with other views of their object.
+    let cross_view = if opts.skip_cross_view {
+        None
+    } else {
+        let multi: Vec<usize> = (0..n)
+            .filter(|&k| !data.other_views(idx[k]).is_empty())
+            .collect();
+        let sub: Vec<usize> = multi.iter().map(|&k| idx[k]).collect();
+        let with_rho = complete_model(c, data, &sub, opts.main_steps, opts.rho, opts, tick)?;
+        let truth_of =
+            |i: usize| -> Vec<bool> { data.amodal_mask(i).iter().map(|&m| m > 0).collect() };
+        let rho_iou: Vec<f64> = sub
+            .iter()
+            .zip(&with_rho)
+            .map(|(&i, comp)| iou(&comp.amodal, &truth_of(i)))
+            .collect();
+        let base: Vec<f64> = multi.iter().map(|&k| scores[k].iou_model).collect();
+        let cl: Vec<u32> = multi.iter().map(|&k| groups[k]).collect();
+        Some(compare(
+            &rho_iou,
+            &base,
+            &cl,
+            opts.bootstrap_resamples,
+            opts.seed ^ 17,
+        ))
+    };
+
+    // Step sweep on the first pairs.
+    let sweep_n = opts.sweep_pairs.min(n);
+    let sweep_idx: Vec<usize> = (0..sweep_n).collect();
+    let mut sweep: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+    for &steps in &opts.sweep_steps {
+        let ious: Vec<f64> = if steps == opts.main_steps {
+            (0..sweep_n).map(|k| scores[k].iou_model).collect()
+        } else {
+            let comp = complete_model(c, data, &sweep_idx, steps, 0.0, opts, tick)?;
+            comp.iter()
+                .zip(&sweep_idx)
+                .map(|(m, &i)| {
+                    let truth: Vec<bool> = data.amodal_mask(i).iter().map(|&v| v > 0).collect();
+                    iou(&m.amodal, &truth)
+                })
+                .collect()
+        };
+        sweep.insert(steps, ious);
+    }
+    let most = opts.sweep_steps.iter().copied().max();
+    let main_vs_most = match (
+        sweep.get(&opts.main_steps),
+        most.and_then(|m| sweep.get(&m)),
+    ) {
+        (Some(a), Some(b)) if most != Some(opts.main_steps) => Some(compare(
+            a,
+            b,
+            &groups[..sweep_n],
+            opts.bootstrap_resamples,
+            opts.seed ^ 19,
+        )),
+        _ => None,
+    };
+    let steps = StepSweep {
+        pairs: sweep_n,
+        miou_by_steps: sweep
+            .iter()
+            .map(|(&s, v)| (s, mean(v.iter().copied())))
+            .collect(),
+        main_vs_most,
+    };
+
     let miou_by_mask_threshold = opts
         .mask_thresholds
         .iter()
         .map(|&th| {
             let m = mean((0..n).map(|k| {
+                let cond = &conds[k];
                 let pred: Vec<bool> = (0..r * r)
                     .map(|p| {
-                        let score = main_comp[k].mask_score[p];
-                        c.in_mask(score, visible[k][p], model_prior[k][p], th)
+                        c.in_mask(
+                            model_out[k].mask_score[p],
+                            cond.visible[p],
+                            cond.prior[p],
+                            th,
+                        )
                     })
                     .collect();
-                iou(&pred, &truth[k])
+                let truth: Vec<bool> = data.amodal_mask(idx[k]).iter().map(|&v| v > 0).collect();
+                iou(&pred, &truth)
             }));
-            (format!("{th:.2}"), m)
+            (format!("{th:.3}"), m)
         })
         .collect();
-    let group = |keep: &dyn Fn(usize) -> bool| -> GroupFigures {
-        let ks: Vec<usize> = (0..n).filter(|&k| keep(idx[k])).collect();
-        GroupFigures {
-            pairs: ks.len(),
-            miou_model: mean(ks.iter().map(|&k| main_iou[k])),
-            miou_visible: mean(ks.iter().map(|&k| iou_visible[k])),
-            miou_convex_hull: mean(ks.iter().map(|&k| iou_hull[k])),
-        }
-    };
-    let occ = &data.set.occlusion;
-    let light = group(&|i| occ[i] >= 0.1 && occ[i] <= 0.4);
-    let heavy = group(&|i| occ[i] > 0.4);
-    let held_out_shapes = group(&|i| data.set.held_out[i] > 0);
-
-    // Cross-view: the pairs that have other views of their object.
-    let multi: Vec<usize> = idx
-        .iter()
-        .copied()
-        .filter(|&i| !data.other_views(i).is_empty())
-        .collect();
-    let with_rho = complete_all(
-        c,
-        data,
-        &multi,
-        opts.main_steps,
-        opts.rho,
-        opts,
-        c.free_space,
-    )?;
-    let pos: BTreeMap<usize, usize> = idx.iter().enumerate().map(|(k, &i)| (i, k)).collect();
-    let miou_rho = mean(
-        multi
-            .iter()
-            .zip(&with_rho)
-            .map(|(&i, comp)| iou(&comp.amodal, &truth[pos[&i]])),
-    );
-    let miou_rho_0 = mean(multi.iter().map(|&i| main_iou[pos[&i]]));
-    let cross_view = CrossViewFigures {
-        pairs: multi.len(),
-        miou_rho_0,
-        miou_rho,
-        rho: opts.rho,
-        gain: miou_rho - miou_rho_0,
-    };
-
-    // Depth on the hidden part after the Huber fit on the visible part.
-    let (mut model_err, mut base_err, mut used) = (Vec::new(), Vec::new(), 0usize);
-    let (mut back_err, mut back_base_err) = (Vec::new(), Vec::new());
-    for (k, &i) in idx.iter().enumerate() {
-        let (vis, amo) = (&visible[k], &truth[k]);
-        let hidden: Vec<usize> = (0..r * r).filter(|&p| amo[p] && !vis[p]).collect();
-        let shown: Vec<usize> = (0..r * r).filter(|&p| vis[p]).collect();
-        if hidden.len() < 5 || shown.len() < 5 {
-            continue;
-        }
-        let pred = &main_comp[k].depth_rel;
-        let gt = data.whole_depth(i);
-        let obs = data.visible_depth(i);
-        let x: Vec<f32> = shown.iter().map(|&p| pred[p]).collect();
-        let y: Vec<f32> = shown.iter().map(|&p| obs[p]).collect();
-        let Ok(fit) = huber_affine_fit(&x, &y, &HuberOptions::default()) else {
-            continue;
-        };
-        let mut sorted = y.clone();
-        sorted.sort_by(f32::total_cmp);
-        let med = sorted[sorted.len() / 2] as f64;
-        model_err.push(mean(
-            hidden
-                .iter()
-                .map(|&p| (fit.apply(pred[p] as f64) - gt[p] as f64).abs()),
-        ));
-        base_err.push(mean(hidden.iter().map(|&p| (med - gt[p] as f64).abs())));
-        let back_pred = &main_comp[k].back_depth_rel;
-        let back_gt = data.whole_back_depth(i);
-        let amodal_px: Vec<usize> = (0..r * r).filter(|&p| amo[p]).collect();
-        back_err.push(mean(
-            amodal_px
-                .iter()
-                .map(|&p| (fit.apply(back_pred[p] as f64) - back_gt[p] as f64).abs()),
-        ));
-        back_base_err.push(mean(amodal_px.iter().map(|&p| {
-            let thin = if vis[p] { obs[p] as f64 } else { med };
-            (thin - back_gt[p] as f64).abs()
-        })));
-        used += 1;
-    }
-    let depth = DepthFigures {
-        pairs: used,
-        mae_hidden_model: mean(model_err.into_iter()),
-        mae_hidden_median_baseline: mean(base_err.into_iter()),
-        mae_back_model: mean(back_err.into_iter()),
-        mae_back_thin_baseline: mean(back_base_err.into_iter()),
-    };
 
     // Speed at the main step count: one crop, then a batch of 8.
     let dev = c.device.clone();
     let (_, one) = data.batch(&[0], &[false], &dev)?;
     let eight_idx: Vec<usize> = (0..8).map(|k| k % data.len()).collect();
     let (_, eight) = data.batch(&eight_idx, &[false; 8], &dev)?;
-    let time = |cond: &Tensor, reps: usize| -> candle_core::Result<f64> {
-        c.complete(cond, &[], 0.0, opts.main_steps, 0)
-            .map_err(|e| candle_core::Error::msg(e.to_string()))?; // warm-up
+    let time = |cond: &Tensor, reps: usize| -> Result<f64, EvalError> {
+        let run = || {
+            c.complete(cond, &[], 0.0, opts.main_steps, 0)
+                .map_err(|e| EvalError::Model(e.to_string()))
+        };
+        run()?; // warm-up
         let t0 = Instant::now();
         for _ in 0..reps {
-            c.complete(cond, &[], 0.0, opts.main_steps, 0)
-                .map_err(|e| candle_core::Error::msg(e.to_string()))?;
+            run()?;
         }
         Ok(t0.elapsed().as_secs_f64() / reps as f64)
     };
-    let t1 = time(&one, 5)?;
-    let t8 = time(&eight, 3)?;
     let speed = SpeedFigures {
         steps: opts.main_steps,
-        completions_per_second_batch_1: 1.0 / t1,
-        completions_per_second_batch_8: 8.0 / t8,
-        threads: rayon::current_num_threads(),
+        completions_per_second_batch_1: 1.0 / time(&one, 5)?,
+        completions_per_second_batch_8: 8.0 / time(&eight, 3)?,
     };
 
+    let mut object_ids = groups.clone();
+    object_ids.sort_unstable();
+    object_ids.dedup();
+    let auc_pixels = cand_labels.len();
     Ok(AmodalReport {
+        split: split.to_string(),
         pairs: n,
+        objects: object_ids.len(),
         resolution: r,
-        miou_by_steps,
-        miou_baseline_visible: mean(iou_visible.iter().copied()),
-        miou_baseline_convex_hull: mean(iou_hull.iter().copied()),
-        free_space_constraint: c.free_space,
-        miou_main_steps_without_free_space,
-        miou_baseline_convex_hull_in_front: mean((0..n).map(|k| iou(&hull_in_front[k], &truth[k]))),
-        miou_baseline_ellipse_in_front: mean((0..n).map(|k| iou(&ellipse_in_front[k], &truth[k]))),
-        mask_prior: c.model.config.mask_prior,
-        miou_baseline_model_prior: mean((0..n).map(|k| iou(&model_prior[k], &truth[k]))),
-        miou_model_or_hull_in_front: mean((0..n).map(|k| {
-            let united: Vec<bool> = main_comp[k]
-                .amodal
-                .iter()
-                .zip(&hull_in_front[k])
-                .map(|(&a, &b)| a || b)
-                .collect();
-            iou(&united, &truth[k])
-        })),
         main_steps: opts.main_steps,
-        mask_threshold: c.mask_threshold,
-        samples_per_completion: c.samples,
-        keep_prior: c.keep_prior,
-        miou_by_mask_threshold,
-        light,
-        heavy,
-        held_out_shapes,
+        model: ModelFacts {
+            mask_head: c.model.config.mask_head,
+            base: c.model.config.base,
+            mask_prior: c.model.config.mask_prior,
+            mask_threshold: c.mask_threshold,
+            keep_prior: c.keep_prior,
+            samples_per_completion: c.samples,
+        },
+        miou_model: mean(scores.iter().map(|s| s.iou_model)),
+        miou_prior: mean(scores.iter().map(|s| s.iou_prior)),
+        miou_rules: mean(scores.iter().map(|s| s.iou_rules)),
+        miou_visible: mean(scores.iter().map(|s| s.iou_visible)),
+        miou_convex_hull: mean(scores.iter().map(|s| s.iou_hull)),
+        mask_vs_prior: cmp(&|s| s.iou_model, &|s| s.iou_prior, &all, 1),
+        by_occlusion,
+        by_category,
+        held_out_families: group(&held, 3),
+        training_categories_above_40: group(&|k| !held(k) && occ(k) > 0.4, 5),
+        chair_legs: ChairLegs {
+            pairs: scores.iter().filter(|s| s.chair_legs).count(),
+            miou: cmp(
+                &|s| s.iou_model,
+                &|s| s.iou_prior,
+                &|k| scores[k].chair_legs,
+                7,
+            ),
+            bottom_region_iou: cmp(
+                &|s| s.bottom_model,
+                &|s| s.bottom_prior,
+                &|k| scores[k].chair_legs,
+                9,
+            ),
+        },
+        candidate_auc: CandidateAuc {
+            pixels: auc_pixels,
+            object_fraction: cand_labels.iter().filter(|&&l| l).count() as f64
+                / auc_pixels.max(1) as f64,
+            model: roc_auc(&cand_scores, &cand_labels),
+            distance_to_prior: roc_auc(&cand_dist, &cand_labels),
+        },
+        hidden_colour: cmp(&|s| s.colour_model, &|s| s.colour_rules, &all, 21),
+        depth: DepthFigures {
+            near_hidden: cmp(&|s| s.near_model, &|s| s.near_rules, &all, 23),
+            far: cmp(&|s| s.far_model, &|s| s.far_rules, &all, 25),
+            near_hidden_bottles_vases: cmp(
+                &|s| s.near_model,
+                &|s| s.near_rules,
+                &is_bottle_vase,
+                27,
+            ),
+            far_bottles_vases: cmp(&|s| s.far_model, &|s| s.far_rules, &is_bottle_vase, 29),
+        },
         cross_view,
-        depth,
+        steps,
+        miou_by_mask_threshold,
         speed,
     })
 }

@@ -10,6 +10,7 @@ pub mod masks;
 pub mod perception;
 pub mod reconstruction;
 pub mod scenes;
+pub mod stats;
 
 /// What can stop an evaluation.
 #[derive(Debug, thiserror::Error)]

@@ -1,0 +1,159 @@
+//! Statistics of the reports: means, paired bootstrap intervals over clusters, ROC AUC.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+/// Mean of the finite values; NaN when there is none.
+pub fn mean(v: impl IntoIterator<Item = f64>) -> f64 {
+    let (s, n) = v
+        .into_iter()
+        .filter(|x| x.is_finite())
+        .fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    if n == 0 {
+        f64::NAN
+    } else {
+        s / n as f64
+    }
+}
+
+/// A method against a baseline on the same items: both means, their difference, and its
+/// 95% interval from a paired bootstrap that resamples whole clusters (the pairs of one object,
+/// whose views are not independent).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Comparison {
+    pub items: usize,
+    pub clusters: usize,
+    pub method: f64,
+    pub baseline: f64,
+    /// `method - baseline`.
+    pub difference: f64,
+    pub ci95: [f64; 2],
+}
+
+/// Paired comparison of `method[i]` against `baseline[i]` (items whose values are both finite),
+/// `clusters[i]` naming each item's cluster; `resamples` bootstrap draws from `seed`.
+pub fn compare(
+    method: &[f64],
+    baseline: &[f64],
+    clusters: &[u32],
+    resamples: usize,
+    seed: u64,
+) -> Comparison {
+    let keep: Vec<usize> = (0..method.len())
+        .filter(|&i| method[i].is_finite() && baseline[i].is_finite())
+        .collect();
+    // Sum of differences and count per cluster.
+    let mut by_cluster: std::collections::BTreeMap<u32, (f64, usize)> = Default::default();
+    for &i in &keep {
+        let e = by_cluster.entry(clusters[i]).or_default();
+        e.0 += method[i] - baseline[i];
+        e.1 += 1;
+    }
+    let groups: Vec<(f64, usize)> = by_cluster.into_values().collect();
+    let m = mean(keep.iter().map(|&i| method[i]));
+    let b = mean(keep.iter().map(|&i| baseline[i]));
+    let mut draws = Vec::with_capacity(resamples);
+    if !groups.is_empty() {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        for _ in 0..resamples {
+            let (mut s, mut n) = (0.0, 0usize);
+            for _ in 0..groups.len() {
+                let g = groups[rng.random_range(0..groups.len())];
+                s += g.0;
+                n += g.1;
+            }
+            draws.push(s / n.max(1) as f64);
+        }
+    }
+    draws.sort_by(f64::total_cmp);
+    let q = |p: f64| -> f64 {
+        if draws.is_empty() {
+            f64::NAN
+        } else {
+            draws[((p * (draws.len() - 1) as f64).round() as usize).min(draws.len() - 1)]
+        }
+    };
+    Comparison {
+        items: keep.len(),
+        clusters: groups.len(),
+        method: m,
+        baseline: b,
+        difference: m - b,
+        ci95: [q(0.025), q(0.975)],
+    }
+}
+
+/// Area under the ROC curve of `scores` for the `labels` (ties count half), by the rank-sum
+/// formula; NaN without both classes.
+pub fn roc_auc(scores: &[f32], labels: &[bool]) -> f64 {
+    let mut order: Vec<usize> = (0..scores.len()).collect();
+    order.sort_by(|&a, &b| scores[a].total_cmp(&scores[b]));
+    let positives = labels.iter().filter(|&&l| l).count() as f64;
+    let negatives = labels.len() as f64 - positives;
+    if positives == 0.0 || negatives == 0.0 {
+        return f64::NAN;
+    }
+    // Average ranks over ties.
+    let mut rank_sum = 0.0;
+    let mut i = 0;
+    while i < order.len() {
+        let mut j = i;
+        while j + 1 < order.len() && scores[order[j + 1]] == scores[order[i]] {
+            j += 1;
+        }
+        let avg_rank = (i + j) as f64 / 2.0 + 1.0;
+        for &k in &order[i..=j] {
+            if labels[k] {
+                rank_sum += avg_rank;
+            }
+        }
+        i = j + 1;
+    }
+    (rank_sum - positives * (positives + 1.0) / 2.0) / (positives * negatives)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auc_of_known_rankings() {
+        assert_eq!(
+            roc_auc(&[0.1, 0.2, 0.8, 0.9], &[false, false, true, true]),
+            1.0
+        );
+        assert_eq!(
+            roc_auc(&[0.9, 0.8, 0.2, 0.1], &[false, false, true, true]),
+            0.0
+        );
+        assert_eq!(
+            roc_auc(&[0.5, 0.5, 0.5, 0.5], &[false, true, false, true]),
+            0.5
+        );
+        assert!(roc_auc(&[0.1, 0.2], &[true, true]).is_nan());
+    }
+
+    #[test]
+    fn bootstrap_interval_covers_a_shift_and_excludes_zero() {
+        // Method = baseline + 0.1 + noise, in 200 clusters of 3 items.
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let n = 600;
+        let baseline: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+        let method: Vec<f64> = baseline
+            .iter()
+            .map(|b| b + 0.1 + rng.random_range(-0.05..0.05))
+            .collect();
+        let clusters: Vec<u32> = (0..n as u32).map(|i| i / 3).collect();
+        let c = compare(&method, &baseline, &clusters, 500, 7);
+        assert_eq!((c.items, c.clusters), (600, 200));
+        assert!((c.difference - 0.1).abs() < 0.01);
+        assert!(
+            c.ci95[0] > 0.09 && c.ci95[1] < 0.11 && c.ci95[0] < c.ci95[1],
+            "{c:?}"
+        );
+        // No difference: the interval holds zero.
+        let same = compare(&baseline, &baseline, &clusters, 200, 7);
+        assert_eq!(same.ci95, [0.0, 0.0]);
+    }
+}
