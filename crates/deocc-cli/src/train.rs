@@ -107,6 +107,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         );
     }
     let config = TrainConfig {
+        mask_threshold: if model.mask_head { 0.5 } else { 0.0 },
         model,
         seed: a.seed,
         batch_size: a.batch_size,
@@ -170,8 +171,9 @@ pub struct ExportArgs {
     /// Output folder: train.json + ema.safetensors (f16), loadable by `deocc run --weights`.
     #[arg(long)]
     out: PathBuf,
-    /// Mask threshold (in [-1, 1]) to ship in the config; choose it on the validation pairs
-    /// (`deocc eval amodal --split val --mask-thresholds ...`). Default: the run's (0).
+    /// Mask threshold to ship in the config (a probability in [0, 1] for models with a mask head,
+    /// the mask channel in [-1, 1] otherwise); choose it on the validation pairs (`deocc eval
+    /// amodal --split val --mask-thresholds ...`). Default: the run's.
     #[arg(long, allow_hyphen_values = true)]
     mask_threshold: Option<f32>,
     /// Ship the rule that keeps every pixel of the geometric prior in the amodal mask (the model
@@ -184,51 +186,14 @@ pub struct ExportArgs {
 /// Ships a run's EMA weights in half precision (half the size, same completions to within f16
 /// rounding) with the run's config.
 pub fn export(a: ExportArgs) -> Result<()> {
-    let ema = a.run.join("ema.safetensors");
-    let cfg = a.run.join("train.json");
-    let state = a.run.join("state.json");
-    for f in [&ema, &cfg, &state] {
-        if !f.exists() {
-            bail!(
-                "{}: missing; is {} a training run with a checkpoint?",
-                f.display(),
-                a.run.display()
-            );
-        }
-    }
-    let mut config: TrainConfig = serde_json::from_str(
-        &std::fs::read_to_string(&cfg)
-            .with_context(|| format!("{}: cannot read", cfg.display()))?,
-    )
-    .with_context(|| format!("{}: not a training config", cfg.display()))?;
-    if let Some(th) = a.mask_threshold {
-        if !(-1.0..=1.0).contains(&th) {
-            bail!("--mask-threshold {th} is outside [-1, 1]");
-        }
-        config.mask_threshold = th;
-    }
-    if let Some(keep) = a.keep_prior {
-        config.mask_keeps_prior = keep;
-    }
-    let tensors = candle_core::safetensors::load(&ema, &candle_core::Device::Cpu)
-        .with_context(|| format!("{}: cannot read", ema.display()))?;
-    let half: std::collections::HashMap<String, candle_core::Tensor> = tensors
-        .into_iter()
-        .map(|(k, v)| Ok((k, v.to_dtype(candle_core::DType::F16)?)))
-        .collect::<candle_core::Result<_>>()?;
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("{}: cannot create", a.out.display()))?;
-    let tmp = a.out.join("ema.safetensors.tmp");
-    candle_core::safetensors::save(&half, &tmp)
-        .with_context(|| format!("{}: cannot write", tmp.display()))?;
-    std::fs::rename(&tmp, a.out.join("ema.safetensors"))?;
-    deocc_io::atomic::write_bytes_atomic(
-        &a.out.join("train.json"),
-        serde_json::to_string_pretty(&config)?.as_bytes(),
-    )
-    .with_context(|| format!("{}: cannot write", a.out.display()))?;
-    std::fs::copy(&state, a.out.join("state.json"))
-        .with_context(|| format!("{}: cannot write", a.out.display()))?;
-    println!("exported {} -> {}", a.run.display(), a.out.display());
+    let out = deocc_model::export::export_run(
+        &a.run,
+        &a.out,
+        &deocc_model::export::ExportOptions {
+            mask_threshold: a.mask_threshold,
+            keep_prior: a.keep_prior,
+        },
+    )?;
+    println!("exported {} -> {}", a.run.display(), out.display());
     Ok(())
 }

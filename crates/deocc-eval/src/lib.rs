@@ -6,6 +6,7 @@
 //! - [`masks`]: mask utilities shared by the baselines (IoU, convex hull).
 
 pub mod amodal;
+pub mod bench;
 pub mod masks;
 pub mod perception;
 pub mod reconstruction;

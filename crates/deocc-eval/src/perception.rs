@@ -227,6 +227,157 @@ impl SegmenterIous {
     }
 }
 
+/// The named failure case on its own scenes (`chairs-v1`: hollow-back chairs).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FailureCaseFigures {
+    pub benchmark: String,
+    pub scenes: usize,
+    /// Grouping of chair masks (ground-truth masks), adaptive tau and the fixed 5 cm one.
+    pub grouping_ari_chairs: f64,
+    grouping_ari_chairs_fixed_0_05: f64,
+    /// Default segmenter: mIoU of chairs and of every object.
+    pub segmenter_miou_chairs: f64,
+    pub segmenter_miou: f64,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PerceptionReport {
+    pub benchmark: String,
+    pub scenes: usize,
+    pub occlusion_precision: f64,
+    pub occlusion_recall: f64,
+    occlusion_f1: f64,
+    pub occlusion_counts: DetectionCounts,
+    /// Grouping with the adaptive threshold (the default).
+    pub grouping_ari: f64,
+    pub grouping_ari_chairs: f64,
+    pub grouping_ablation: Vec<GroupingFigures>,
+    /// Default RGB-D segmenter: mean IoU of ground-truth object instances (>= 50 px, room
+    /// structure excluded) with their best segment, and occlusion detection on its masks.
+    pub segmenter_miou: f64,
+    /// The same including floor and walls (split by whatever stands on them).
+    pub segmenter_miou_with_structure: f64,
+    pub segmenter_occlusion_precision: f64,
+    pub segmenter_occlusion_recall: f64,
+    segmenter_occlusion_f1: f64,
+    pub segmenter_views_per_second: f64,
+    /// Segmenter mIoU per category (floor and walls included).
+    pub segmenter_miou_by_category: std::collections::BTreeMap<String, f64>,
+    pub hollow_back_chairs: Option<FailureCaseFigures>,
+}
+
+fn failure_case(scenes: usize, tick: &mut dyn FnMut()) -> Result<FailureCaseFigures, crate::EvalError> {
+    use deocc_pipeline::matching::Threshold;
+    let mut preset = deocc_synth::dataset::chairs_v1();
+    preset.config.gt_points_per_m2 = 10.0;
+    let n = scenes.min(preset.seeds.len());
+    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
+    let mut ious = SegmenterIous::default();
+    let mut counts = DetectionCounts::default();
+    let (mut adaptive, mut fixed, mut k) = (0.0, 0.0, 0usize);
+    for &seed in &preset.seeds[..n] {
+        let r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        segmenter_figures(&r, &segmenter, &mut counts, &mut ious);
+        if let (Some(a), Some(f)) = (
+            grouping(&r, Threshold::Adaptive).1,
+            grouping(&r, Threshold::Fixed(0.05)).1,
+        ) {
+            adaptive += a;
+            fixed += f;
+            k += 1;
+        }
+        tick();
+    }
+    Ok(FailureCaseFigures {
+        benchmark: preset.name,
+        scenes: n,
+        grouping_ari_chairs: adaptive / k.max(1) as f64,
+        grouping_ari_chairs_fixed_0_05: fixed / k.max(1) as f64,
+        segmenter_miou_chairs: ious
+            .per_category()
+            .get("chair")
+            .copied()
+            .unwrap_or(f64::NAN),
+        segmenter_miou: ious.miou_objects(),
+    })
+}
+
+/// `deocc eval perception`: occlusion detection and grouping on the first `scenes` bench-v1
+/// scenes, the default segmenter, and the hollow-back chairs on `failure_scenes` chairs-v1 scenes.
+pub fn perception_benchmark(
+    scenes: usize,
+    failure_scenes: usize,
+    tick: &mut dyn FnMut(),
+) -> Result<PerceptionReport, crate::EvalError> {
+    use deocc_pipeline::matching::Threshold;
+    let mut preset = deocc_synth::dataset::bench_v1();
+    preset.config.gt_points_per_m2 = 10.0; // ground truth is not used here
+    let n = scenes.min(preset.seeds.len());
+    let thresholds = [
+        ("adaptive".to_string(), Threshold::Adaptive),
+        ("fixed 0.05 m".into(), Threshold::Fixed(0.05)),
+        ("fixed 0.15 m".into(), Threshold::Fixed(0.15)),
+        ("fixed 0.50 m".into(), Threshold::Fixed(0.5)),
+    ];
+    let mut counts = DetectionCounts::default();
+    let mut seg_counts = DetectionCounts::default();
+    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
+    let mut seg_ious = SegmenterIous::default();
+    let (mut seg_time, mut seg_views) = (0.0f64, 0usize);
+    let mut sums = vec![(0.0f64, 0.0f64, 0usize, 0.0f64); thresholds.len()];
+    for &seed in &preset.seeds[..n] {
+        let r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        occlusion_counts(&r, &mut counts);
+        let t0 = std::time::Instant::now();
+        segmenter_figures(&r, &segmenter, &mut seg_counts, &mut seg_ious);
+        seg_time += t0.elapsed().as_secs_f64();
+        seg_views += r.views.len();
+        for (k, (_, t)) in thresholds.iter().enumerate() {
+            let (ari, chairs, tau) = grouping(&r, *t);
+            sums[k].0 += ari;
+            if let Some(c) = chairs {
+                sums[k].1 += c;
+                sums[k].2 += 1;
+            }
+            sums[k].3 += tau as f64;
+        }
+        tick();
+    }
+    let ablation: Vec<GroupingFigures> = thresholds
+        .iter()
+        .zip(&sums)
+        .map(|((name, _), s)| GroupingFigures {
+            threshold: name.clone(),
+            ari_mean: s.0 / n as f64,
+            ari_chairs_mean: s.1 / s.2.max(1) as f64,
+            tau_mean_m: s.3 / n as f64,
+        })
+        .collect();
+    let report = PerceptionReport {
+        benchmark: preset.name.clone(),
+        scenes: n,
+        occlusion_precision: counts.precision(),
+        occlusion_recall: counts.recall(),
+        occlusion_f1: counts.f1(),
+        occlusion_counts: counts,
+        grouping_ari: ablation[0].ari_mean,
+        grouping_ari_chairs: ablation[0].ari_chairs_mean,
+        grouping_ablation: ablation,
+        segmenter_miou: seg_ious.miou_objects(),
+        segmenter_miou_with_structure: seg_ious.miou_all(),
+        segmenter_occlusion_precision: seg_counts.precision(),
+        segmenter_occlusion_recall: seg_counts.recall(),
+        segmenter_occlusion_f1: seg_counts.f1(),
+        // Includes the occlusion analysis and scoring: a lower bound on the segmenter alone.
+        segmenter_views_per_second: seg_views as f64 / seg_time.max(1e-9),
+        segmenter_miou_by_category: seg_ious.per_category(),
+        hollow_back_chairs: (failure_scenes > 0)
+            .then(|| failure_case(failure_scenes, tick))
+            .transpose()?,
+    };
+    Ok(report)
+}
+
 /// Adjusted Rand index between two labelings of the same items (1 = identical partitions).
 pub fn adjusted_rand_index(a: &[usize], b: &[usize]) -> f64 {
     use std::collections::HashMap;

@@ -11,7 +11,8 @@ use deocc_completion::{CropCondition, MaskPrior};
 use deocc_io::pairs::{load_pairs, PairSet};
 use rand::Rng;
 
-use crate::encode::{write_condition, write_target, TargetView};
+use crate::config::ResidualBase;
+use crate::encode::{base_outside_object, write_condition, write_target, TargetView};
 pub use crate::encode::{COND_CHANNELS, DEPTH_SCALE, TARGET_CHANNELS};
 
 /// Pairs plus an index of which pairs show the same object.
@@ -20,6 +21,8 @@ pub struct PairData {
     groups: HashMap<u32, Vec<usize>>,
     /// Which prior condition channel 6 carries (set it to the model's, see [`condition_prior`]).
     mask_prior: MaskPrior,
+    /// The residual base of the model the batches are for.
+    base: ResidualBase,
 }
 
 impl PairData {
@@ -32,7 +35,15 @@ impl PairData {
             set,
             groups,
             mask_prior: MaskPrior::HullInFront,
+            base: ResidualBase::Visible,
         }
+    }
+
+    /// The same pairs with targets made for a model with this residual base (outside the object
+    /// a `rules` model's target is its base, [`crate::encode::base_outside_object`]).
+    pub fn with_base(mut self, base: ResidualBase) -> Self {
+        self.base = base;
+        self
     }
 
     /// The same pairs with condition channel 6 made for a model with this residual prior.
@@ -123,12 +134,11 @@ impl PairData {
                 self.mask_prior,
                 &mut cond[k * n * COND_CHANNELS..(k + 1) * n * COND_CHANNELS],
             );
-            write_target(
-                &self.target(i),
-                r,
-                flip,
-                &mut target[k * n * TARGET_CHANNELS..(k + 1) * n * TARGET_CHANNELS],
-            );
+            let t = &mut target[k * n * TARGET_CHANNELS..(k + 1) * n * TARGET_CHANNELS];
+            write_target(&self.target(i), r, flip, t);
+            if self.base == ResidualBase::Rules {
+                base_outside_object(t, &cond[k * n * COND_CHANNELS..(k + 1) * n * COND_CHANNELS]);
+            }
         }
         let b = indices.len();
         Ok((

@@ -5,9 +5,10 @@
 //! 0-2 crop RGB `v / 127.5 - 1` (-1 outside the image), 3 visible mask `+-1`, 4 visible relative
 //! depth x [`DEPTH_SCALE`] (0 elsewhere), 5 scene relative depth x [`DEPTH_SCALE`] (clamped to
 //! [-1, 1] before scaling, 0 where unmeasured), 6 the geometric prior of the model's
-//! [`MaskPrior`] `+-1`, 7-9 the rules completer's colour (the nearest visible colour inside the
-//! prior, white outside), 10 its near-side and 11 its far-side relative depth x [`DEPTH_SCALE`]
-//! inside the prior (0 outside): the residual base of `base: rules` models
+//! [`MaskPrior`] `+-1`, 7-9 the nearest visible colour, 10 the rules completer's near side (the
+//! visible depth, and the plane through it elsewhere) and 11 its far side (symmetric inside the
+//! prior, the near side outside it), relative depth x [`DEPTH_SCALE`]: the residual base of
+//! `base: rules` models
 //! ([`crate::config::ResidualBase`]). Models read the first `cond_channels` of them, so weights
 //! trained before a channel was added keep working.
 //!
@@ -15,7 +16,7 @@
 //! far-side relative depth x [`DEPTH_SCALE`].
 
 use candle_core::{Device, Result, Tensor};
-use deocc_completion::rules::RulesCompleter;
+use deocc_completion::rules::{nearest_visible_colour, RulesCompleter};
 use deocc_completion::{CropCondition, MaskPrior};
 
 use crate::config::ResidualBase;
@@ -46,27 +47,43 @@ pub fn write_condition(c: &CropCondition, prior: MaskPrior, out: &mut [f32]) {
         o[5] = c.scene_depth[k] * DEPTH_SCALE;
         o[6] = if prior_mask[k] { 1.0 } else { -1.0 };
     }
-    // The rules base (channels 7-11), on the default prior as the rules completer makes it.
+    // The rules base (channels 7-11) over the whole crop: the nearest visible colour and the
+    // plane near side everywhere, the symmetric far side inside the default prior and the near
+    // side outside it. A completer's mask may reach beyond the prior; its colour and depth start
+    // from the rules there too.
     let rules = RulesCompleter {
         resolution: c.resolution,
         ..RulesCompleter::default()
     }
     .complete_one(c);
+    let fill = nearest_visible_colour(&c.rgb, &c.visible, c.resolution);
     for (k, o) in out.chunks_exact_mut(COND_CHANNELS).enumerate() {
-        for (o, &v) in o[7..10].iter_mut().zip(&rules.rgb[3 * k..3 * k + 3]) {
+        for (o, &v) in o[7..10].iter_mut().zip(&fill[3 * k..3 * k + 3]) {
             *o = v as f32 / 127.5 - 1.0;
         }
-        let inside = rules.amodal[k];
-        o[10] = if inside {
-            rules.depth[k] * DEPTH_SCALE
+        o[10] = rules.depth[k] * DEPTH_SCALE;
+        o[11] = if rules.amodal[k] {
+            rules.back_depth[k]
         } else {
-            0.0
-        };
-        o[11] = if inside {
-            rules.back_depth[k] * DEPTH_SCALE
-        } else {
-            0.0
-        };
+            rules.depth[k]
+        } * DEPTH_SCALE;
+    }
+}
+
+/// For `base: rules` training targets: outside the object the colour and depth targets are the
+/// base itself (the residual is zero there: nothing outside the object is ever used), so the
+/// model spends nothing on painting the background. `target` (r*r*[`TARGET_CHANNELS`]) and
+/// `cond` (r*r*[`COND_CHANNELS`]) of one sample.
+pub fn base_outside_object(target: &mut [f32], cond: &[f32]) {
+    for (t, c) in target
+        .chunks_exact_mut(TARGET_CHANNELS)
+        .zip(cond.chunks_exact(COND_CHANNELS))
+    {
+        if t[3] <= 0.0 {
+            t[..3].copy_from_slice(&c[7..10]);
+            t[4] = c[10];
+            t[5] = c[11];
+        }
     }
 }
 

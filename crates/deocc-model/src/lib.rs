@@ -10,12 +10,14 @@
 //! - [`encode`]: the channel encoding of crops, written once for training and inference;
 //! - [`data`]: batches from the training pairs;
 //! - [`train`]: the resumable training loop (run directory, AdamW, EMA, checkpoints);
+//! - [`export`]: shipping a run's EMA weights in f16;
 //! - [`infer`]: loading a trained model and completing crops ([`GlDotCompleter`], one
 //!   implementation of the pipeline's `deocc_completion::Completer` seam).
 
 pub mod config;
 pub mod data;
 pub mod encode;
+pub mod export;
 pub mod flow;
 pub mod infer;
 pub mod init;

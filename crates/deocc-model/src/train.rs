@@ -801,12 +801,14 @@ pub fn train_run(
     }
     let sizes = shard_sizes(&opts.shards)?;
     let prior = trainer.config.model.mask_prior;
+    let base = trainer.config.model.base;
     let load = |epoch: u64| -> Result<PairData> {
         let pick = resident_shards(&sizes, opts.resident_pairs, trainer_seed(opts), epoch);
         let files: Vec<&PathBuf> = pick.iter().map(|&k| &opts.shards[k]).collect();
         let data = PairData::load(&files)
             .map_err(|e| TrainError::Config(e.to_string()))?
-            .with_mask_prior(prior);
+            .with_mask_prior(prior)
+            .with_base(base);
         Ok(data)
     };
     let every = opts.reshuffle_every;

@@ -307,3 +307,44 @@ fn mask_head_loss_prefers_the_right_mask() {
     assert!(g.iter().all(|v| v.is_finite()));
     assert!(g.iter().any(|&v| v != 0.0));
 }
+
+/// A rules-base model's training target is its base outside the object (zero residual there),
+/// and the base covers the whole crop: the nearest visible colour everywhere.
+#[test]
+fn rules_base_targets_are_the_base_outside_the_object() {
+    use deocc_model::encode::{residual_prior, COND_CHANNELS, TARGET_CHANNELS};
+    let data = tiny_pairs().with_base(ResidualBase::Rules);
+    let (target, cond) = data.batch(&[0, 1], &[false, true], &Device::Cpu).unwrap();
+    let base = residual_prior(&cond, MaskPrior::EllipseOrBoxInFront, ResidualBase::Rules).unwrap();
+    let residual: Vec<f32> = (&target - &base).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+    let t: Vec<f32> = target.flatten_all().unwrap().to_vec1().unwrap();
+    let c: Vec<f32> = cond.flatten_all().unwrap().to_vec1().unwrap();
+    let (mut outside, mut inside_nonzero) = (0, 0);
+    for (p, (res, tp)) in residual
+        .chunks_exact(TARGET_CHANNELS)
+        .zip(t.chunks_exact(TARGET_CHANNELS))
+        .enumerate()
+    {
+        let cp = &c[p * COND_CHANNELS..(p + 1) * COND_CHANNELS];
+        if tp[3] <= 0.0 {
+            outside += 1;
+            for ch in [0, 1, 2, 4, 5] {
+                assert_eq!(res[ch], 0.0, "pixel {p} channel {ch}");
+            }
+        } else if res[..3].iter().any(|&v| v != 0.0) {
+            inside_nonzero += 1;
+        }
+        // The base colour is a visible colour (never the white of "no object").
+        assert!(cp[7..10].iter().all(|v| (-1.0..=1.0).contains(v)));
+    }
+    assert!(outside > 0 && inside_nonzero > 0);
+    // Without the rules base, the target outside the object is white and zero depth.
+    let (legacy, _) = tiny_pairs()
+        .batch(&[0], &[false], &Device::Cpu)
+        .unwrap();
+    let l: Vec<f32> = legacy.flatten_all().unwrap().to_vec1().unwrap();
+    assert!(l
+        .chunks_exact(TARGET_CHANNELS)
+        .filter(|p| p[3] <= 0.0)
+        .all(|p| p[0] == 1.0 && p[4] == 0.0));
+}

@@ -1,0 +1,7 @@
+//! Benchmarks against peers, in the same run, alternating rounds; each returns a report the CLI
+//! writes. The peers' scripts are built into the binary.
+
+pub mod geometry;
+pub mod model;
+pub mod synth;
+pub mod timing;
