@@ -35,13 +35,13 @@ pub struct PerceptionArgs {
 
 fn perception(a: PerceptionArgs) -> Result<()> {
     let total = a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len())
-        + a.failure_scenes.min(deocc_synth::dataset::chairs_v1().seeds.len());
+        + a.failure_scenes
+            .min(deocc_synth::dataset::chairs_v1().seeds.len());
     let pb = crate::progress::bar(total as u64, "scenes");
-    let report = deocc_eval::perception::perception_benchmark(
-        a.scenes,
-        a.failure_scenes,
-        &mut || pb.inc(1),
-    )?;
+    let report =
+        deocc_eval::perception::perception_benchmark(a.scenes, a.failure_scenes, &mut || {
+            pb.inc(1)
+        })?;
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())

@@ -266,7 +266,10 @@ pub struct PerceptionReport {
     pub hollow_back_chairs: Option<FailureCaseFigures>,
 }
 
-fn failure_case(scenes: usize, tick: &mut dyn FnMut()) -> Result<FailureCaseFigures, crate::EvalError> {
+fn failure_case(
+    scenes: usize,
+    tick: &mut dyn FnMut(),
+) -> Result<FailureCaseFigures, crate::EvalError> {
     use deocc_pipeline::matching::Threshold;
     let mut preset = deocc_synth::dataset::chairs_v1();
     preset.config.gt_points_per_m2 = 10.0;

@@ -47,7 +47,11 @@ impl TryFrom<IntrinsicsFields> for Intrinsics {
     }
 }
 
+/// Largest image side a camera may have (pixels).
+pub const MAX_IMAGE_SIDE: u32 = 16_384;
+
 impl Intrinsics {
+    /// Checked intrinsics: finite, positive, plausible focal lengths and principal point.
     pub fn new(fx: f32, fy: f32, cx: f32, cy: f32, width: u32, height: u32) -> Result<Self> {
         if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0) {
             return Err(GeometryError::InvalidIntrinsics(format!(
@@ -59,9 +63,30 @@ impl Intrinsics {
                 "principal point must be finite, got cx={cx}, cy={cy}"
             )));
         }
-        if width == 0 || height == 0 {
+        if width == 0 || height == 0 || width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
             return Err(GeometryError::InvalidIntrinsics(format!(
-                "image size must be positive, got {width}x{height}"
+                "image size must be between 1 and {MAX_IMAGE_SIDE} pixels a side, got {width}x{height}"
+            )));
+        }
+        // Plausible cameras only: a focal length of 1/1000 to 1000 image sides (fields of view
+        // of about 179.9 down to 0.06 degrees), the principal point within one image size of
+        // the image. Anything else is a unit mistake (metres for pixels) that would collapse or
+        // explode every back-projected point.
+        let side = width.max(height) as f32;
+        for (name, f) in [("fx", fx), ("fy", fy)] {
+            if !(side * 1e-3..=side * 1e3).contains(&f) {
+                return Err(GeometryError::InvalidIntrinsics(format!(
+                    "{name} = {f} px is implausible for a {width}x{height} image (expected \
+                     {:.3} to {:.0} px)",
+                    side * 1e-3,
+                    side * 1e3
+                )));
+            }
+        }
+        let (w, h) = (width as f32, height as f32);
+        if !(-w..=2.0 * w).contains(&cx) || !(-h..=2.0 * h).contains(&cy) {
+            return Err(GeometryError::InvalidIntrinsics(format!(
+                "principal point ({cx}, {cy}) is more than an image size outside the {width}x{height} image"
             )));
         }
         Ok(Self {

@@ -160,3 +160,169 @@ pub fn fuse_generated(
     out.append(&fresh);
     Ok(out)
 }
+
+/// Instance ids seen in one voxel with their counts (almost always one id).
+#[derive(Debug, Clone)]
+enum IdCounts {
+    One(u32, u32),
+    Many(Vec<(u32, u32)>),
+}
+
+impl IdCounts {
+    fn add(&mut self, id: u32) {
+        match self {
+            IdCounts::One(i, n) if *i == id => *n += 1,
+            IdCounts::One(i, n) => *self = IdCounts::Many(vec![(*i, *n), (id, 1)]),
+            IdCounts::Many(v) => match v.iter_mut().find(|(i, _)| *i == id) {
+                Some((_, n)) => *n += 1,
+                None => v.push((id, 1)),
+            },
+        }
+    }
+    /// The most frequent id, the smallest among ties (what [`voxel_downsample`] picks).
+    fn mode(&self) -> u32 {
+        match self {
+            IdCounts::One(i, _) => *i,
+            IdCounts::Many(v) => v
+                .iter()
+                .min_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)))
+                .map_or(0, |p| p.0),
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+struct Cell {
+    sum: Vector3<f64>,
+    n: u32,
+    color: [u32; 3],
+    generated: u8,
+    ids: IdCounts,
+}
+
+/// [`voxel_downsample`] of a cloud given in parts (frames) one at a time, so that memory holds
+/// one part and the occupied voxels, never the whole concatenation: the same voxels (the grid
+/// anchored at the union's min bound minus half a voxel, which the caller gives), the same means
+/// accumulated in the same order, the same result bit for bit as [`voxel_downsample`] of the
+/// concatenated parts.
+pub struct VoxelGrid {
+    origin: Point3<f64>,
+    voxel: f64,
+    cells: std::collections::HashMap<[i32; 3], Cell>,
+    colors: Option<bool>,
+    instance: Option<bool>,
+    generated: Option<bool>,
+}
+
+impl VoxelGrid {
+    /// A grid whose cells are anchored at `min_bound` (of everything that will be added) minus
+    /// half a voxel, as [`voxel_downsample`] anchors them.
+    pub fn new(min_bound: &Point3<f32>, voxel_m: f64) -> Result<Self> {
+        let voxel = check_voxel(voxel_m)?;
+        Ok(Self {
+            origin: min_bound.cast::<f64>() - Vector3::repeat(voxel * 0.5),
+            voxel,
+            cells: Default::default(),
+            colors: None,
+            instance: None,
+            generated: None,
+        })
+    }
+
+    /// Adds a part. Every part must carry the same attributes (normals are not supported).
+    pub fn add(&mut self, part: &PointCloud) -> Result<()> {
+        let same = |seen: &mut Option<bool>, has: bool, what: &str| -> Result<()> {
+            match seen {
+                Some(s) if *s != has => Err(GeometryError::InvalidArgument(format!(
+                    "voxel grid: a part {} {what} and another does not",
+                    if has { "has" } else { "lacks" }
+                ))),
+                _ => {
+                    *seen = Some(has);
+                    Ok(())
+                }
+            }
+        };
+        same(&mut self.colors, part.colors.is_some(), "colours")?;
+        same(&mut self.instance, part.instance.is_some(), "instance ids")?;
+        same(&mut self.generated, part.generated.is_some(), "provenance")?;
+        if part.normals.is_some() {
+            return Err(GeometryError::InvalidArgument(
+                "voxel grid: normals are not averaged here; use voxel_downsample".into(),
+            ));
+        }
+        let keys: Vec<[i32; 3]> = part
+            .positions
+            .par_iter()
+            .map(|p| voxel_key(p, &self.origin, self.voxel))
+            .collect();
+        for (i, key) in keys.into_iter().enumerate() {
+            let id = part.instance.as_ref().map_or(0, |v| v[i]);
+            let gen = part.generated.as_ref().map_or(0, |v| v[i]);
+            let c = part.colors.as_ref().map_or([0; 3], |v| v[i]);
+            let p = part.positions[i].coords.cast::<f64>();
+            match self.cells.entry(key) {
+                std::collections::hash_map::Entry::Occupied(mut e) => {
+                    let cell = e.get_mut();
+                    cell.sum += p;
+                    cell.n += 1;
+                    for (acc, v) in cell.color.iter_mut().zip(c) {
+                        *acc += v as u32;
+                    }
+                    cell.generated = cell.generated.min(gen);
+                    cell.ids.add(id);
+                }
+                std::collections::hash_map::Entry::Vacant(e) => {
+                    e.insert(Cell {
+                        sum: p,
+                        n: 1,
+                        color: c.map(u32::from),
+                        generated: gen,
+                        ids: IdCounts::One(id, 1),
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Occupied voxels so far.
+    pub fn len(&self) -> usize {
+        self.cells.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+
+    /// One point per voxel, in voxel-key order, as [`voxel_downsample`] returns them.
+    pub fn into_cloud(self) -> PointCloud {
+        let mut cells: Vec<([i32; 3], Cell)> = self.cells.into_iter().collect();
+        cells.par_sort_unstable_by_key(|(k, _)| *k);
+        let positions = cells
+            .iter()
+            .map(|(_, c)| Point3::from((c.sum / c.n as f64).cast::<f32>()))
+            .collect();
+        let colors = self.colors.unwrap_or(false).then(|| {
+            cells
+                .iter()
+                .map(|(_, c)| c.color.map(|v| ((v + c.n / 2) / c.n) as u8))
+                .collect()
+        });
+        let instance = self
+            .instance
+            .unwrap_or(false)
+            .then(|| cells.iter().map(|(_, c)| c.ids.mode()).collect());
+        let generated = self
+            .generated
+            .unwrap_or(false)
+            .then(|| cells.iter().map(|(_, c)| c.generated).collect());
+        PointCloud {
+            positions,
+            colors,
+            normals: None,
+            instance,
+            generated,
+        }
+    }
+}

@@ -54,6 +54,10 @@ pub fn pose_to_rows(pose: &Isometry3<f32>) -> [[f64; 4]; 4] {
     std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
 }
 
+/// Farthest a camera may be from the world origin (metres): beyond it f32 coordinates lose the
+/// millimetres a scene needs.
+pub const MAX_TRANSLATION_M: f64 = 1e5;
+
 /// Parses a row-major 4x4 rigid transform, rejecting non-rigid or non-finite matrices.
 pub fn pose_from_rows(rows: &[[f64; 4]; 4]) -> std::result::Result<Isometry3<f32>, String> {
     let m = Matrix4::from_fn(|r, c| rows[r][c]);
@@ -73,6 +77,12 @@ pub fn pose_from_rows(rows: &[[f64; 4]; 4]) -> std::result::Result<Isometry3<f32
     }
     let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
     let t = Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]);
+    if t.vector.norm() > MAX_TRANSLATION_M {
+        return Err(format!(
+            "pose's translation is {:.3e} m from the origin, more than {MAX_TRANSLATION_M:.0e} m",
+            t.vector.norm()
+        ));
+    }
     Ok(Isometry3::from_parts(t, rot).cast::<f32>())
 }
 

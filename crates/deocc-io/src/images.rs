@@ -11,10 +11,40 @@ use image::{ImageBuffer, Luma, Rgb, RgbImage};
 use crate::atomic::write_bytes_atomic;
 use crate::error::{IoError, IoErrorKind, Result};
 
+/// Largest image side accepted (pixels): far beyond any sensor, far below a decompression bomb.
+pub const MAX_IMAGE_SIDE: u32 = 16_384;
+
 fn open_image(path: &Path) -> Result<image::DynamicImage> {
+    open_image_expecting(path, None)
+}
+
+/// Decodes an image, first checking the size its header declares (against `expected` when given,
+/// and against [`MAX_IMAGE_SIDE`]) so that a small file declaring a huge image is refused
+/// before anything is decoded.
+fn open_image_expecting(path: &Path, expected: Option<(u32, u32)>) -> Result<image::DynamicImage> {
     let bytes = std::fs::read(path).map_err(|e| IoError::new(path, e))?;
-    image::load_from_memory(&bytes)
-        .map_err(|e| IoError::new(path, IoErrorKind::Image(e.to_string())))
+    let image_err = |e: image::ImageError| IoError::new(path, IoErrorKind::Image(e.to_string()));
+    let reader = || {
+        image::ImageReader::new(Cursor::new(&bytes))
+            .with_guessed_format()
+            .map_err(|e| IoError::new(path, e))
+    };
+    let (w, h) = reader()?.into_dimensions().map_err(image_err)?;
+    if let Some((ew, eh)) = expected {
+        if (w, h) != (ew, eh) {
+            return Err(IoError::invalid(
+                path,
+                format!("image is {w}x{h} but cameras.json says {ew}x{eh}"),
+            ));
+        }
+    }
+    if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+        return Err(IoError::invalid(
+            path,
+            format!("image is {w}x{h}, larger than {MAX_IMAGE_SIDE} pixels a side"),
+        ));
+    }
+    reader()?.decode().map_err(image_err)
 }
 
 fn encode_png<P, C>(path: &Path, img: &ImageBuffer<P, C>, filter: FilterType) -> Result<()>
@@ -35,8 +65,12 @@ where
     write_bytes_atomic(path, &bytes)
 }
 
-fn read_u16_png(path: &Path, what: &str) -> Result<(u32, u32, Vec<u16>)> {
-    match open_image(path)? {
+fn read_u16_png(
+    path: &Path,
+    what: &str,
+    expected: Option<(u32, u32)>,
+) -> Result<(u32, u32, Vec<u16>)> {
+    match open_image_expecting(path, expected)? {
         image::DynamicImage::ImageLuma16(img) => Ok((img.width(), img.height(), img.into_raw())),
         other => Err(IoError::invalid(
             path,
@@ -50,7 +84,12 @@ fn read_u16_png(path: &Path, what: &str) -> Result<(u32, u32, Vec<u16>)> {
 
 /// Reads a 16-bit depth PNG in millimetres into metres.
 pub fn read_depth_png(path: &Path) -> Result<DepthMap> {
-    let (w, h, mm) = read_u16_png(path, "depth in millimetres")?;
+    read_depth_png_expecting(path, None)
+}
+
+/// [`read_depth_png`], refusing before decoding an image of another size than `expected`.
+pub fn read_depth_png_expecting(path: &Path, expected: Option<(u32, u32)>) -> Result<DepthMap> {
+    let (w, h, mm) = read_u16_png(path, "depth in millimetres", expected)?;
     DepthMap::new(w, h, mm.iter().map(|&v| v as f32 / 1000.0).collect())
         .map_err(|e| IoError::new(path, e))
 }
@@ -91,7 +130,15 @@ impl InstanceMap {
 
 /// Reads a u16 instance map PNG. 8-bit single-channel PNGs are accepted too (ids up to 255).
 pub fn read_instance_png(path: &Path) -> Result<InstanceMap> {
-    let (width, height, ids) = match open_image(path)? {
+    read_instance_png_expecting(path, None)
+}
+
+/// [`read_instance_png`], refusing before decoding an image of another size than `expected`.
+pub fn read_instance_png_expecting(
+    path: &Path,
+    expected: Option<(u32, u32)>,
+) -> Result<InstanceMap> {
+    let (width, height, ids) = match open_image_expecting(path, expected)? {
         image::DynamicImage::ImageLuma16(img) => (img.width(), img.height(), img.into_raw()),
         image::DynamicImage::ImageLuma8(img) => (
             img.width(),
@@ -138,7 +185,12 @@ pub fn read_mask_png(path: &Path) -> Result<(u32, u32, Vec<bool>)> {
 }
 
 pub fn read_rgb_png(path: &Path) -> Result<RgbImage> {
-    Ok(open_image(path)?.to_rgb8())
+    read_rgb_png_expecting(path, None)
+}
+
+/// [`read_rgb_png`], refusing before decoding an image of another size than `expected`.
+pub fn read_rgb_png_expecting(path: &Path, expected: Option<(u32, u32)>) -> Result<RgbImage> {
+    Ok(open_image_expecting(path, expected)?.to_rgb8())
 }
 
 pub fn write_rgb_png(path: &Path, img: &RgbImage) -> Result<()> {

@@ -289,12 +289,58 @@ impl<R: BufRead> Body<R> {
 /// face element (a point cloud has none).
 pub fn read_ply(path: &Path) -> Result<Mesh> {
     let file = std::fs::File::open(path).map_err(|e| IoError::new(path, e))?;
-    read_ply_from(path, BufReader::with_capacity(1 << 20, file))
+    let size = file.metadata().map_err(|e| IoError::new(path, e))?.len();
+    read_ply_sized(path, BufReader::with_capacity(1 << 20, file), Some(size))
 }
 
 /// Reads PLY from any buffered reader; `path` only names the source in errors.
-pub fn read_ply_from(path: &Path, mut reader: impl BufRead) -> Result<Mesh> {
+pub fn read_ply_from(path: &Path, reader: impl BufRead) -> Result<Mesh> {
+    read_ply_sized(path, reader, None)
+}
+
+/// Fewest bytes one row of an element can take: binary rows hold every scalar and every list's
+/// count, ASCII rows a digit and a separator per property.
+fn min_row_bytes(el: &Element, encoding: PlyEncoding) -> u64 {
+    el.properties
+        .iter()
+        .map(|p| match (encoding, &p.kind) {
+            (PlyEncoding::Ascii, _) => 2,
+            (_, PropertyKind::Scalar(t)) => t.size() as u64,
+            (_, PropertyKind::List { count, .. }) => count.size() as u64,
+        })
+        .sum::<u64>()
+        .max(1)
+}
+
+/// Rows allocated up front: never more than the file can hold (or 1M without a size), so a
+/// header that lies costs nothing before the data runs out.
+fn capacity(count: usize, max_rows: Option<u64>) -> usize {
+    count.min(max_rows.unwrap_or(1 << 20).min(usize::MAX as u64) as usize)
+}
+
+fn read_ply_sized(path: &Path, mut reader: impl BufRead, size: Option<u64>) -> Result<Mesh> {
     let header = read_header(path, &mut reader)?;
+    if let Some(size) = size {
+        // What the header declares must fit in the file, before anything is allocated.
+        let needed = header.elements.iter().fold(0u64, |acc, el| {
+            acc.saturating_add((el.count as u64).saturating_mul(min_row_bytes(el, header.encoding)))
+        });
+        if needed > size {
+            let el = header
+                .elements
+                .iter()
+                .max_by_key(|el| el.count)
+                .map(|el| format!("{} {}", el.count, el.name))
+                .unwrap_or_default();
+            return Err(header_err(
+                path,
+                format!(
+                    "the header declares {el} rows (at least {needed} bytes), but the file has {size} bytes"
+                ),
+            ));
+        }
+    }
+    let max_rows = |el: &Element| size.map(|s| s / min_row_bytes(el, header.encoding));
     let mut body = match header.encoding {
         PlyEncoding::Ascii => Body::Ascii {
             reader,
@@ -314,9 +360,10 @@ pub fn read_ply_from(path: &Path, mut reader: impl BufRead) -> Result<Mesh> {
     for el in &header.elements {
         if el.name == "vertex" {
             saw_vertex = true;
-            (mesh.vertices, mesh.extras) = read_vertices(path, el, &mut body)?;
+            (mesh.vertices, mesh.extras) =
+                read_vertices(path, el, &mut body, capacity(el.count, max_rows(el)))?;
         } else if el.name == "face" {
-            mesh.triangles = read_faces(path, el, &mut body)?;
+            mesh.triangles = read_faces(path, el, &mut body, capacity(el.count, max_rows(el)))?;
         } else {
             for row in 0..el.count {
                 for p in &el.properties {
@@ -403,7 +450,12 @@ const KNOWN_VERTEX_PROPERTIES: [&str; 18] = [
 
 type VertexData = (PointCloud, Vec<(String, Vec<f64>)>);
 
-fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<VertexData> {
+fn read_vertices<R: BufRead>(
+    path: &Path,
+    el: &Element,
+    body: &mut Body<R>,
+    cap: usize,
+) -> Result<VertexData> {
     // Column of each known attribute, looked up once.
     let find = |names: &[&str]| {
         el.properties
@@ -437,11 +489,11 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
 
     let n = el.count;
     let mut cloud = PointCloud {
-        positions: Vec::with_capacity(n),
-        colors: color.map(|_| Vec::with_capacity(n)),
-        normals: normal.map(|_| Vec::with_capacity(n)),
-        instance: instance.map(|_| Vec::with_capacity(n)),
-        generated: generated.map(|_| Vec::with_capacity(n)),
+        positions: Vec::with_capacity(cap),
+        colors: color.map(|_| Vec::with_capacity(cap)),
+        normals: normal.map(|_| Vec::with_capacity(cap)),
+        instance: instance.map(|_| Vec::with_capacity(cap)),
+        generated: generated.map(|_| Vec::with_capacity(cap)),
     };
     let extra_columns: Vec<usize> = (0..el.properties.len())
         .filter(|&j| {
@@ -452,7 +504,7 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
         .collect();
     let mut extras: Vec<(String, Vec<f64>)> = extra_columns
         .iter()
-        .map(|&j| (el.properties[j].name.clone(), Vec::with_capacity(n)))
+        .map(|&j| (el.properties[j].name.clone(), Vec::with_capacity(cap)))
         .collect();
     let mut row = vec![0.0f64; el.properties.len()];
     for r in 0..n {
@@ -499,7 +551,12 @@ fn read_vertices<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> R
     Ok((cloud, extras))
 }
 
-fn read_faces<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Result<Vec<[u32; 3]>> {
+fn read_faces<R: BufRead>(
+    path: &Path,
+    el: &Element,
+    body: &mut Body<R>,
+    cap: usize,
+) -> Result<Vec<[u32; 3]>> {
     let idx = el.properties.iter().position(|p| {
         matches!(p.kind, PropertyKind::List { .. })
             && (p.name == "vertex_indices" || p.name == "vertex_index")
@@ -510,7 +567,7 @@ fn read_faces<R: BufRead>(path: &Path, el: &Element, body: &mut Body<R>) -> Resu
             "the face element has no vertex_indices list",
         ));
     };
-    let mut tris = Vec::with_capacity(el.count);
+    let mut tris = Vec::with_capacity(cap);
     let mut corners = Vec::new();
     for r in 0..el.count {
         for (j, p) in el.properties.iter().enumerate() {

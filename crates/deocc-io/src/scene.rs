@@ -27,8 +27,8 @@ use serde::{Deserialize, Serialize};
 use crate::cameras::{read_cameras_json, read_json, write_cameras_json, FrameCamera};
 use crate::error::{IoError, Result};
 use crate::images::{
-    read_depth_png, read_instance_png, read_rgb_png, write_depth_png, write_instance_png,
-    write_rgb_png, InstanceMap,
+    read_depth_png_expecting, read_instance_png_expecting, read_rgb_png_expecting, write_depth_png,
+    write_instance_png, write_rgb_png, InstanceMap,
 };
 
 /// One RGB-D frame with its camera and (optional) instance map.
@@ -178,28 +178,9 @@ fn read_frame(dir: &Path, fc: &FrameCamera) -> Result<Frame> {
     };
     let [rgb_path, depth_path, inst_path] = frame_paths(dir, &fc.name);
     let (w, h) = (fc.intrinsics.width(), fc.intrinsics.height());
-    let rgb = read_rgb_png(&rgb_path)?;
-    if (rgb.width(), rgb.height()) != (w, h) {
-        return Err(IoError::invalid(
-            &rgb_path,
-            format!(
-                "image is {}x{} but cameras.json says {w}x{h}",
-                rgb.width(),
-                rgb.height()
-            ),
-        ));
-    }
-    let depth = read_depth_png(&depth_path)?;
-    if (depth.width(), depth.height()) != (w, h) {
-        return Err(IoError::invalid(
-            &depth_path,
-            format!(
-                "depth is {}x{} but cameras.json says {w}x{h}",
-                depth.width(),
-                depth.height()
-            ),
-        ));
-    }
+    // Sizes are checked against cameras.json from the PNG headers, before decoding.
+    let rgb = read_rgb_png_expecting(&rgb_path, Some((w, h)))?;
+    let depth = read_depth_png_expecting(&depth_path, Some((w, h)))?;
     if depth.valid_count() == 0 {
         return Err(IoError::invalid(
             &depth_path,
@@ -207,17 +188,7 @@ fn read_frame(dir: &Path, fc: &FrameCamera) -> Result<Frame> {
         ));
     }
     let instances = if inst_path.exists() {
-        let m = read_instance_png(&inst_path)?;
-        if (m.width, m.height) != (w, h) {
-            return Err(IoError::invalid(
-                &inst_path,
-                format!(
-                    "instance map is {}x{} but the frame is {w}x{h}",
-                    m.width, m.height
-                ),
-            ));
-        }
-        Some(m)
+        Some(read_instance_png_expecting(&inst_path, Some((w, h)))?)
     } else {
         None
     };

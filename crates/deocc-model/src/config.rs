@@ -31,6 +31,7 @@ pub enum ResidualBase {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct GlDotConfig {
     /// Crop side in pixels.
     pub resolution: usize,

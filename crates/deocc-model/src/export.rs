@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{DType, Device, Tensor};
 
-use crate::train::{read_json, Result, TrainConfig, TrainError};
+use crate::train::{Result, TrainConfig, TrainError};
 
 /// What to ship with the weights: the mask rule chosen on the validation pairs.
 #[derive(Debug, Clone, Default)]
@@ -51,11 +51,7 @@ pub fn export_run(run: &Path, out: &Path, opts: &ExportOptions) -> Result<PathBu
             ));
         }
     }
-    let mut config: TrainConfig = read_json(&cfg_path)?;
-    config
-        .model
-        .validate()
-        .map_err(|e| file_err(&cfg_path, e))?;
+    let mut config = TrainConfig::read(&cfg_path)?;
     if let Some(th) = opts.mask_threshold {
         let range = if config.model.mask_head {
             0.0..=1.0
@@ -74,11 +70,15 @@ pub fn export_run(run: &Path, out: &Path, opts: &ExportOptions) -> Result<PathBu
     if let Some(keep) = opts.keep_prior {
         config.mask_keeps_prior = keep;
     }
-    let tensors = candle_core::safetensors::load(&ema, &Device::Cpu).map_err(|e| file_err(&ema, e))?;
+    let tensors =
+        candle_core::safetensors::load(&ema, &Device::Cpu).map_err(|e| file_err(&ema, e))?;
     for (name, t) in &tensors {
         let values = t.flatten_all()?.to_dtype(DType::F32)?.to_vec1::<f32>()?;
         if values.iter().any(|v| !v.is_finite()) {
-            return Err(file_err(&ema, format!("tensor {name} has non-finite values")));
+            return Err(file_err(
+                &ema,
+                format!("tensor {name} has non-finite values"),
+            ));
         }
     }
     let half: HashMap<String, Tensor> = tensors

@@ -14,7 +14,7 @@ use crate::encode::{
 use crate::flow::euler_sample;
 use crate::init::randn;
 use crate::model::{mix_views, GlDot};
-use crate::train::{read_json, Result, TrainConfig, TrainError};
+use crate::train::{Result, TrainConfig, TrainError};
 use rand::SeedableRng;
 
 /// Margin of the free-space constraint, in relative depth (crop widths).
@@ -96,6 +96,15 @@ impl GlDotCompleter {
             .into_iter()
             .map(|(k, v)| Ok((k, v.to_dtype(DType::F32)?)))
             .collect::<candle_core::Result<_>>()?;
+        let sorted: std::collections::BTreeMap<String, Tensor> = tensors
+            .iter()
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect();
+        if let Some(bad) = crate::train::check_finite(&sorted)? {
+            return Err(TrainError::Config(format!(
+                "tensor {bad} has non-finite values (NaN or infinite): the weights are broken"
+            )));
+        }
         let vb = VarBuilder::from_tensors(tensors, DType::F32, device);
         let model = GlDot::new(config, vb).map_err(|e| {
             TrainError::Config(format!("weights do not fit the model configuration: {e}"))
@@ -122,7 +131,7 @@ impl GlDotCompleter {
 
     /// From a run directory (EMA weights) or a folder holding `model.safetensors` + `train.json`.
     pub fn from_dir(dir: &Path, device: &Device) -> Result<Self> {
-        let cfg: TrainConfig = read_json(&dir.join("train.json"))?;
+        let cfg = TrainConfig::read(&dir.join("train.json"))?;
         let weights = if dir.join("ema.safetensors").exists() {
             dir.join("ema.safetensors")
         } else {
@@ -136,7 +145,7 @@ impl GlDotCompleter {
 
     /// From a `train.json` text and safetensors bytes (the weights built into the binary).
     pub fn from_bytes(train_json: &str, safetensors: &[u8], device: &Device) -> Result<Self> {
-        let cfg: TrainConfig = serde_json::from_str(train_json)
+        let cfg = TrainConfig::from_json(train_json)
             .map_err(|e| TrainError::Config(format!("built-in train.json: {e}")))?;
         let tensors = candle_core::safetensors::load_buffer(safetensors, device)?;
         Ok(

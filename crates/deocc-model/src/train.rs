@@ -47,7 +47,7 @@ fn file_err(path: &Path, e: impl std::fmt::Display) -> TrainError {
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct TrainConfig {
     pub model: GlDotConfig,
     pub seed: u64,
@@ -270,6 +270,111 @@ pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
     serde_json::from_str(&text).map_err(|e| file_err(path, e))
 }
 
+impl TrainConfig {
+    /// Parses a `train.json`: the model configuration must be there (a `{}` is not a preset),
+    /// unknown fields are refused, and every value is range-checked ([`TrainConfig::validate`]).
+    pub fn from_json(text: &str) -> std::result::Result<Self, String> {
+        let value: serde_json::Value = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        if value.get("model").is_none() {
+            return Err("no \"model\" configuration".into());
+        }
+        let cfg: Self = serde_json::from_value(value).map_err(|e| e.to_string())?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Reads and checks a `train.json`, naming the file in errors.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| file_err(path, e))?;
+        Self::from_json(&text).map_err(|e| file_err(path, e))
+    }
+
+    /// Checks every field's range (the model's shape arithmetic included).
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        self.model.validate()?;
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name} = {v} must be positive and finite"))
+            }
+        };
+        if self.batch_size == 0 || self.batch_size > 4096 {
+            return Err(format!(
+                "batch_size = {} is outside 1..=4096",
+                self.batch_size
+            ));
+        }
+        if self.steps == 0 {
+            return Err("steps must be at least 1".into());
+        }
+        if self.checkpoint_every == 0 {
+            return Err("checkpoint_every must be at least 1".into());
+        }
+        positive("learning_rate", self.learning_rate)?;
+        positive("grad_clip", self.grad_clip)?;
+        positive("timestep_shift", f64::from(self.timestep_shift))?;
+        if !(self.weight_decay.is_finite() && (0.0..1.0).contains(&self.weight_decay)) {
+            return Err(format!(
+                "weight_decay = {} is outside [0, 1)",
+                self.weight_decay
+            ));
+        }
+        if !(0.0..1.0).contains(&self.ema_decay) {
+            return Err(format!("ema_decay = {} is outside [0, 1)", self.ema_decay));
+        }
+        if !(0.0..=1.0).contains(&self.cross_view_probability) {
+            return Err(format!(
+                "cross_view_probability = {} is outside [0, 1]",
+                self.cross_view_probability
+            ));
+        }
+        if !(self.mask_head_noise_fraction > 0.0 && self.mask_head_noise_fraction <= 1.0) {
+            return Err(format!(
+                "mask_head_noise_fraction = {} is outside (0, 1]",
+                self.mask_head_noise_fraction
+            ));
+        }
+        if !(self.mask_loss_weight.is_finite() && self.mask_loss_weight >= 0.0) {
+            return Err(format!(
+                "mask_loss_weight = {} must be finite and non-negative",
+                self.mask_loss_weight
+            ));
+        }
+        let range = if self.model.mask_head {
+            0.0..=1.0
+        } else {
+            -1e3..=1e3
+        };
+        if !range.contains(&self.mask_threshold) {
+            return Err(format!(
+                "mask_threshold = {} is outside [{}, {}]",
+                self.mask_threshold,
+                range.start(),
+                range.end()
+            ));
+        }
+        if !(1..=16).contains(&self.inference_samples) {
+            return Err(format!(
+                "inference_samples = {} is outside 1..=16",
+                self.inference_samples
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Every tensor finite, or an error naming the first that is not.
+pub fn check_finite(tensors: &BTreeMap<String, Tensor>) -> candle_core::Result<Option<String>> {
+    for (name, t) in tensors {
+        let v = t.flatten_all()?.to_dtype(DType::F32)?.to_vec1::<f32>()?;
+        if v.iter().any(|x| !x.is_finite()) {
+            return Ok(Some(name.clone()));
+        }
+    }
+    Ok(None)
+}
+
 /// The rectified-flow loss of one batch of `b` random samples of the model's shapes (t = 0.5,
 /// condition tokens mixed from two encodings with rho = 0.5): the step `deocc bench model` times
 /// against PyTorch and the `train_steps` profiling example runs, one definition for both.
@@ -406,7 +511,7 @@ impl Trainer {
             write_json(&dir.join("train.json"), &t.config)?;
             return Ok(t);
         }
-        let mut saved: TrainConfig = read_json(&dir.join("train.json"))?;
+        let mut saved = TrainConfig::read(&dir.join("train.json"))?;
         if saved.model != config.model {
             return Err(TrainError::Config(format!("{}: this run was started with another model configuration; use a new --run directory", dir.display())));
         }
@@ -422,7 +527,32 @@ impl Trainer {
             })?;
             var.set(w)?;
         }
-        t.ema = load_tensors(&dir.join("ema.safetensors"), device)?;
+        let ema_path = dir.join("ema.safetensors");
+        t.ema = load_tensors(&ema_path, device)?;
+        for (name, var) in &t.vars {
+            match t.ema.get(name) {
+                Some(e) if e.shape() == var.shape() => {}
+                Some(e) => {
+                    return Err(file_err(
+                        &ema_path,
+                        format!(
+                            "tensor {name} has shape {:?}, the model needs {:?}",
+                            e.shape(),
+                            var.shape()
+                        ),
+                    ))
+                }
+                None => return Err(file_err(&ema_path, format!("missing tensor {name}"))),
+            }
+        }
+        for (path, tensors) in [(&ema_path, &t.ema)] {
+            if let Some(bad) = check_finite(tensors)? {
+                return Err(file_err(
+                    path,
+                    format!("tensor {bad} has non-finite values"),
+                ));
+            }
+        }
         let opt = load_tensors(&dir.join("optimizer.safetensors"), device)?;
         for name in t.vars.keys() {
             let get = |p: &str| {

@@ -316,7 +316,12 @@ fn rules_base_targets_are_the_base_outside_the_object() {
     let data = tiny_pairs().with_base(ResidualBase::Rules);
     let (target, cond) = data.batch(&[0, 1], &[false, true], &Device::Cpu).unwrap();
     let base = residual_prior(&cond, MaskPrior::EllipseOrBoxInFront, ResidualBase::Rules).unwrap();
-    let residual: Vec<f32> = (&target - &base).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+    let residual: Vec<f32> = (&target - &base)
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
     let t: Vec<f32> = target.flatten_all().unwrap().to_vec1().unwrap();
     let c: Vec<f32> = cond.flatten_all().unwrap().to_vec1().unwrap();
     let (mut outside, mut inside_nonzero) = (0, 0);
@@ -339,9 +344,7 @@ fn rules_base_targets_are_the_base_outside_the_object() {
     }
     assert!(outside > 0 && inside_nonzero > 0);
     // Without the rules base, the target outside the object is white and zero depth.
-    let (legacy, _) = tiny_pairs()
-        .batch(&[0], &[false], &Device::Cpu)
-        .unwrap();
+    let (legacy, _) = tiny_pairs().batch(&[0], &[false], &Device::Cpu).unwrap();
     let l: Vec<f32> = legacy.flatten_all().unwrap().to_vec1().unwrap();
     assert!(l
         .chunks_exact(TARGET_CHANNELS)

@@ -84,6 +84,7 @@ pub fn run(
         ));
     }
 
+    check_scene_extent(scene, opts.max_scene_radius_m)?;
     let t = Instant::now();
     let observed = reconstruct::reconstruct(scene, opts.observed_voxel_m)?;
     timings.reconstruct_s = t.elapsed().as_secs_f64();
@@ -183,6 +184,32 @@ pub fn run(
         completed,
         report,
     })
+}
+
+/// Every camera within `radius_m` of the cameras' median position, or an error naming the frame.
+pub fn check_scene_extent(scene: &SceneInput, radius_m: f32) -> Result<(), PipelineError> {
+    let centres: Vec<nalgebra::Point3<f32>> =
+        scene.frames.iter().map(|f| f.camera.center()).collect();
+    let median = |axis: usize| {
+        let mut v: Vec<f32> = centres.iter().map(|c| c[axis]).collect();
+        v.sort_by(f32::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    let m = nalgebra::Point3::new(median(0), median(1), median(2));
+    for (f, c) in scene.frames.iter().zip(&centres) {
+        let d = (c - m).norm();
+        if !(d <= radius_m) {
+            return Err(PipelineError::input(
+                scene.dir.join("cameras.json"),
+                format!(
+                    "frame {}: its camera is {d:.1} m from the other cameras' median position \
+                     (more than max_scene_radius_m = {radius_m} m); is its pose right?",
+                    f.name
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -35,6 +35,10 @@ pub struct PipelineOptions {
     pub complete_planes: bool,
     /// Keep a generated point only if every view agrees it is hidden ([`crate::carve`]).
     pub carve_generated: bool,
+    /// Every camera must lie within this distance of the cameras' median position (metres): one
+    /// scene seen from one place. A pose far from the others is a mistake that would spread the
+    /// reconstruction over kilometres.
+    pub max_scene_radius_m: f32,
 }
 
 impl Default for PipelineOptions {
@@ -52,6 +56,7 @@ impl Default for PipelineOptions {
             min_visible_px: 200,
             complete_planes: true,
             carve_generated: true,
+            max_scene_radius_m: 50.0,
         }
     }
 }
@@ -106,6 +111,12 @@ impl PipelineOptions {
         }
         if !(1..=1024).contains(&self.batch) {
             return Err(bad("batch", format!("{} is outside 1..=1024", self.batch)));
+        }
+        if !(self.max_scene_radius_m.is_finite() && self.max_scene_radius_m > 0.0) {
+            return Err(bad(
+                "max_scene_radius_m",
+                format!("{} must be positive and finite", self.max_scene_radius_m),
+            ));
         }
         if self.min_visible_px == 0 {
             return Err(bad("min_visible_px", "must be at least 1"));

@@ -31,6 +31,9 @@ pub struct PlaneOptions {
     pub min_extent_m: f32,
     /// Pixels sampled per view and instance: every `stride`-th row and column.
     pub stride: usize,
+    /// A plane whose fill grid would exceed this many cells is not filled (memory and time
+    /// stay bounded whatever the poses say): 25M cells is 50 x 50 m at 1 cm.
+    pub max_cells: u64,
 }
 
 impl Default for PlaneOptions {
@@ -41,6 +44,7 @@ impl Default for PlaneOptions {
             min_inlier_fraction: 0.6,
             min_extent_m: 0.8,
             stride: 3,
+            max_cells: 25_000_000,
         }
     }
 }
@@ -249,6 +253,15 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
         );
         let (a0, a1) = ((lo.x / s).floor() as i32, (hi.x / s).ceil() as i32);
         let (b0, b1) = ((lo.y / s).floor() as i32, (hi.y / s).ceil() as i32);
+        let cells = (a1 as i64 - a0 as i64 + 1) as u64 * (b1 as i64 - b0 as i64 + 1) as u64;
+        if cells > opts.max_cells {
+            tracing::warn!(
+                "plane of instance {} spans {cells} cells of {s} m, more than {}: not filled",
+                first.instance_id,
+                opts.max_cells
+            );
+            continue;
+        }
         for a in a0..=a1 {
             for b in b0..=b1 {
                 if occupied.contains(&(a, b)) {

@@ -104,7 +104,10 @@ pub fn bench_clouds(n: usize) -> Result<CloudPair, EvalError> {
 /// Our side of one round: (operation, seconds, result value).
 type OurRound = Vec<(&'static str, f64, Option<f64>)>;
 
-fn our_round(pa: &[Point3<f32>], pb: &[Point3<f32>]) -> Result<(OurRound, Vec<nalgebra::Vector3<f32>>), EvalError> {
+fn our_round(
+    pa: &[Point3<f32>],
+    pb: &[Point3<f32>],
+) -> Result<(OurRound, Vec<nalgebra::Vector3<f32>>), EvalError> {
     let mut ours: OurRound = Vec::new();
     let (t, _) = median_time(3, || Ok(KdIndex::build(pa)?))?;
     ours.push(("kdtree_build", t, None));
@@ -143,7 +146,11 @@ fn our_round(pa: &[Point3<f32>], pb: &[Point3<f32>]) -> Result<(OurRound, Vec<na
 }
 
 /// Runs the Open3D side once on the files.
-fn open3d_round(python: &str, script: &Path, files: [&Path; 4]) -> Result<serde_json::Value, EvalError> {
+fn open3d_round(
+    python: &str,
+    script: &Path,
+    files: [&Path; 4],
+) -> Result<serde_json::Value, EvalError> {
     eprintln!("open3d: running bench_open3d.py");
     let status = Command::new(python)
         .arg(script)
@@ -157,7 +164,9 @@ fn open3d_round(python: &str, script: &Path, files: [&Path; 4]) -> Result<serde_
         )));
     }
     if !status.success() {
-        return Err(EvalError::Data(format!("bench_open3d.py failed ({status})")));
+        return Err(EvalError::Data(format!(
+            "bench_open3d.py failed ({status})"
+        )));
     }
     let out = files[3];
     let text = std::fs::read_to_string(out).map_err(|e| deocc_io::IoError::new(out, e))?;
@@ -165,7 +174,11 @@ fn open3d_round(python: &str, script: &Path, files: [&Path; 4]) -> Result<serde_
 }
 
 /// Runs the benchmark: `points` in cloud A (B gets half), `rounds` alternating rounds.
-pub fn geometry_bench(points: usize, rounds: usize, python: &str) -> Result<GeometryReport, EvalError> {
+pub fn geometry_bench(
+    points: usize,
+    rounds: usize,
+    python: &str,
+) -> Result<GeometryReport, EvalError> {
     let tmp = TempDir::new("bench-geometry")?;
     let dir = &tmp.0;
     let script = peer_script(dir, "bench_open3d.py", BENCH_OPEN3D_PY)?;
@@ -203,7 +216,11 @@ pub fn geometry_bench(points: usize, rounds: usize, python: &str) -> Result<Geom
             write_point_cloud(&path_n, &with_normals, PlyEncoding::BinaryLittleEndian)?;
         }
         ours_rounds.push(ours);
-        o3d_rounds.push(open3d_round(python, &script, [&path_a, &path_b, &path_n, &o3d_json])?);
+        o3d_rounds.push(open3d_round(
+            python,
+            &script,
+            [&path_a, &path_b, &path_n, &o3d_json],
+        )?);
     }
     let mut rows = Vec::new();
     for (k, &(name, _, value)) in ours_rounds[0].iter().enumerate() {
@@ -247,7 +264,10 @@ pub fn geometry_bench(points: usize, rounds: usize, python: &str) -> Result<Geom
         points_b: pb.len(),
         threads: rayon::current_num_threads(),
         rounds: ours_rounds.len(),
-        open3d_version: o3d_rounds[0]["open3d_version"].as_str().unwrap_or("?").into(),
+        open3d_version: o3d_rounds[0]["open3d_version"]
+            .as_str()
+            .unwrap_or("?")
+            .into(),
         rows,
     })
 }
@@ -264,7 +284,11 @@ impl GeometryReport {
                 .relative_difference
                 .map(|d| format!("{d:.1e}"))
                 .unwrap_or_else(|| "-".into());
-            let per: Vec<String> = r.ratio_per_round.iter().map(|x| format!("{x:.2}")).collect();
+            let per: Vec<String> = r
+                .ratio_per_round
+                .iter()
+                .map(|x| format!("{x:.2}"))
+                .collect();
             md.push_str(&format!(
                 "| {} | {:.3} | {:.3} | {:.2} | {} | {} |\n",
                 r.operation,

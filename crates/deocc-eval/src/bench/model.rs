@@ -129,22 +129,25 @@ pub fn model_bench(a: &ModelBenchOptions) -> Result<ModelReport, EvalError> {
         })?
         .0)
     };
-    let forward =
-        |m: &GlDot, cfg: &GlDotConfig, b: usize, rng: &mut rand_chacha::ChaCha8Rng| -> Result<(), EvalError> {
-            let cond = randn(
-                (b, cfg.resolution, cfg.resolution, cfg.cond_channels),
-                rng,
-                &dev,
-            )?;
-            let toks = m.encode(&cond)?;
-            let x = randn(
-                (b, cfg.resolution, cfg.resolution, cfg.target_channels),
-                rng,
-                &dev,
-            )?;
-            m.forward(&x, &Tensor::full(0.5f32, b, &dev)?, &cond, &toks)?;
-            Ok(())
-        };
+    let forward = |m: &GlDot,
+                   cfg: &GlDotConfig,
+                   b: usize,
+                   rng: &mut rand_chacha::ChaCha8Rng|
+     -> Result<(), EvalError> {
+        let cond = randn(
+            (b, cfg.resolution, cfg.resolution, cfg.cond_channels),
+            rng,
+            &dev,
+        )?;
+        let toks = m.encode(&cond)?;
+        let x = randn(
+            (b, cfg.resolution, cfg.resolution, cfg.target_channels),
+            rng,
+            &dev,
+        )?;
+        m.forward(&x, &Tensor::full(0.5f32, b, &dev)?, &cond, &toks)?;
+        Ok(())
+    };
     // Inference as users run it (`Completer`): the same weights as plain tensors, so candle
     // records no autograd graph (PyTorch's side runs under `torch.no_grad()`).
     let frozen = {
@@ -176,7 +179,8 @@ pub fn model_bench(a: &ModelBenchOptions) -> Result<ModelReport, EvalError> {
         let mut j = serde_json::to_value(&cfg).map_err(|e| EvalError::Data(e.to_string()))?;
         j["threads"] = serde_json::json!(rayon::current_num_threads());
         let cfg_path = dir.0.join("config.json");
-        std::fs::write(&cfg_path, j.to_string()).map_err(|e| deocc_io::IoError::new(&cfg_path, e))?;
+        std::fs::write(&cfg_path, j.to_string())
+            .map_err(|e| deocc_io::IoError::new(&cfg_path, e))?;
         let script = peer_script(&dir.0, "bench_torch.py", BENCH_TORCH_PY)?;
         Some((dir, cfg_path, script))
     };
@@ -296,7 +300,5 @@ fn run_torch_bench(
         return Err(EvalError::Data(format!("bench_torch.py failed ({status})")));
     }
     let text = std::fs::read_to_string(&out).map_err(|e| deocc_io::IoError::new(&out, e))?;
-    serde_json::from_str(&text)
-        .map_err(|e| EvalError::Data(format!("{}: {e}", out.display())))
+    serde_json::from_str(&text).map_err(|e| EvalError::Data(format!("{}: {e}", out.display())))
 }
-

@@ -135,4 +135,3 @@ pub fn synth_bench(scenes: usize) -> Result<SynthReport, EvalError> {
         pairs_per_second,
     })
 }
-
