@@ -18,6 +18,23 @@ pub enum BenchCommand {
     /// GL-DoT speed: training step, forward, 4-step completions, token scaling (linear against
     /// softmax attention), and the same model in PyTorch timed in the same run.
     Model(ModelArgs),
+    /// Peak resident memory of `deocc run` against the number of views.
+    Memory(MemoryArgs),
+}
+
+#[derive(Args)]
+pub struct MemoryArgs {
+    #[arg(long, default_value = "bench/memory.json")]
+    json: PathBuf,
+    /// Numbers of views, comma-separated.
+    #[arg(long, default_value = "10,50,100,200,500", value_delimiter = ',')]
+    views: Vec<usize>,
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    #[arg(long, default_value = "gldot")]
+    completer: String,
 }
 
 #[derive(Args)]
@@ -74,6 +91,15 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         }
         BenchCommand::Synth(a) => {
             let report = bench::synth::synth_bench(a.scenes as usize)?;
+            crate::report::write_report(&a.json, &report)?;
+        }
+        BenchCommand::Memory(a) => {
+            if a.views.is_empty() || a.views.iter().any(|&v| v == 0 || v > 2000) {
+                anyhow::bail!("--views: each between 1 and 2000");
+            }
+            let exe = std::env::current_exe()?;
+            let report =
+                bench::memory::memory_bench(&exe, &a.views, a.width, a.height, &a.completer)?;
             crate::report::write_report(&a.json, &report)?;
         }
         BenchCommand::Model(a) => {

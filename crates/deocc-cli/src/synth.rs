@@ -51,7 +51,9 @@ pub struct SceneOptions {
     /// Ground-truth surface samples per square metre.
     #[arg(long, default_value_t = 10_000.0)]
     gt_density: f32,
-    /// A user mesh to put on the table, as PATH=SIZE_M (OBJ, PLY or STL), repeatable.
+    /// A user mesh to put on the table, as PATH=SIZE_M (OBJ, PLY or STL), repeatable: scaled so
+    /// that its largest side is SIZE_M, which must fit on the table top (tables are 0.6-1.0 m
+    /// deep, so up to about 0.35 m; a mesh that does not fit is an error).
     #[arg(long = "mesh", value_name = "PATH=SIZE_M")]
     meshes: Vec<String>,
 }

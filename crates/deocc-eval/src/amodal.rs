@@ -215,16 +215,25 @@ fn complete_model(
 
 /// Mean absolute error of the near side on `hidden` pixels and of the far side on `amodal`
 /// pixels, after the Huber fit of `near` to the visible depth; `None` when it cannot be fitted.
-fn depth_errors(
-    near: &[f32],
-    far: &[f32],
-    visible: &[usize],
-    hidden: &[usize],
-    amodal: &[usize],
-    obs: &[f32],
-    truth_near: &[f32],
-    truth_far: &[f32],
-) -> Option<(f64, f64)> {
+/// One pair's pixels and true depth for [`depth_errors`].
+struct DepthCase<'a> {
+    visible: &'a [usize],
+    hidden: &'a [usize],
+    amodal: &'a [usize],
+    obs: &'a [f32],
+    truth_near: &'a [f32],
+    truth_far: &'a [f32],
+}
+
+fn depth_errors(near: &[f32], far: &[f32], case: &DepthCase<'_>) -> Option<(f64, f64)> {
+    let DepthCase {
+        visible,
+        hidden,
+        amodal,
+        obs,
+        truth_near,
+        truth_far,
+    } = case;
     let x: Vec<f32> = visible.iter().map(|&p| near[p]).collect();
     let y: Vec<f32> = visible.iter().map(|&p| obs[p]).collect();
     let fit = huber_affine_fit(&x, &y, &HuberOptions::default()).ok()?;
@@ -349,27 +358,17 @@ pub fn evaluate_amodal(
                 data.whole_depth(i),
                 data.whole_back_depth(i),
             );
+            let case = DepthCase {
+                visible: &visible_px,
+                hidden: &hidden,
+                amodal: &amodal,
+                obs,
+                truth_near: tn,
+                truth_far: tf,
+            };
             if let (Some(m), Some(b)) = (
-                depth_errors(
-                    &model.depth_rel,
-                    &model.back_depth_rel,
-                    &visible_px,
-                    &hidden,
-                    &amodal,
-                    obs,
-                    tn,
-                    tf,
-                ),
-                depth_errors(
-                    &rule.depth,
-                    &rule.back_depth,
-                    &visible_px,
-                    &hidden,
-                    &amodal,
-                    obs,
-                    tn,
-                    tf,
-                ),
+                depth_errors(&model.depth_rel, &model.back_depth_rel, &case),
+                depth_errors(&rule.depth, &rule.back_depth, &case),
             ) {
                 (s.near_model, s.far_model) = m;
                 (s.near_rules, s.far_rules) = b;

@@ -3,11 +3,15 @@
 //! How well deocc works, measured on held-out data with baselines beside every figure.
 //! - [`amodal`]: 2-D amodal completion (mask mIoU per step count, per occlusion level, on held-out
 //!   shapes; cross-view gain; hidden-part depth error; completions per second).
-//! - [`masks`]: mask utilities shared by the baselines (IoU, convex hull).
+//! - [`masks`]: mask utilities shared by the baselines (IoU, convex hull);
+//! - [`objects`]: per-object 3-D hidden completeness, a row per completer;
+//! - [`reconstruction`], [`perception`]: the bench-v1 scene benchmarks;
+//! - [`bench`]: speed against peers; [`stats`]: bootstrap intervals, AUC.
 
 pub mod amodal;
 pub mod bench;
 pub mod masks;
+pub mod objects;
 pub mod perception;
 pub mod reconstruction;
 pub mod scenes;

@@ -51,7 +51,8 @@ impl TryFrom<IntrinsicsFields> for Intrinsics {
 pub const MAX_IMAGE_SIDE: u32 = 16_384;
 
 impl Intrinsics {
-    /// Checked intrinsics: finite, positive, plausible focal lengths and principal point.
+    /// Checked intrinsics: finite, positive focal lengths, a finite principal point, an image of
+    /// 1 to [`MAX_IMAGE_SIDE`] pixels a side.
     pub fn new(fx: f32, fy: f32, cx: f32, cy: f32, width: u32, height: u32) -> Result<Self> {
         if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0) {
             return Err(GeometryError::InvalidIntrinsics(format!(
@@ -68,10 +69,24 @@ impl Intrinsics {
                 "image size must be between 1 and {MAX_IMAGE_SIDE} pixels a side, got {width}x{height}"
             )));
         }
-        // Plausible cameras only: a focal length of 1/1000 to 1000 image sides (fields of view
-        // of about 179.9 down to 0.06 degrees), the principal point within one image size of
-        // the image. Anything else is a unit mistake (metres for pixels) that would collapse or
-        // explode every back-projected point.
+        Ok(Self {
+            fx,
+            fy,
+            cx,
+            cy,
+            width,
+            height,
+        })
+    }
+
+    /// Checks that a camera given by a user is plausible: a focal length of 1/1000 to 1000
+    /// image sides (fields of view of about 179.9 down to 0.06 degrees), the principal point
+    /// within one image size of the image. Anything else is a unit mistake (metres for pixels)
+    /// that would collapse or explode every back-projected point. (Crop cameras, whose principal
+    /// point lies far outside the crop, are legitimate and not checked.)
+    pub fn check_plausible(&self) -> Result<()> {
+        let (fx, fy, cx, cy, width, height) =
+            (self.fx, self.fy, self.cx, self.cy, self.width, self.height);
         let side = width.max(height) as f32;
         for (name, f) in [("fx", fx), ("fy", fy)] {
             if !(side * 1e-3..=side * 1e3).contains(&f) {
@@ -89,14 +104,7 @@ impl Intrinsics {
                 "principal point ({cx}, {cy}) is more than an image size outside the {width}x{height} image"
             )));
         }
-        Ok(Self {
-            fx,
-            fy,
-            cx,
-            cy,
-            width,
-            height,
-        })
+        Ok(())
     }
 
     /// Intrinsics from a horizontal field of view, principal point at the image centre.

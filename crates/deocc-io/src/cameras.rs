@@ -97,6 +97,9 @@ pub fn read_cameras_json(path: &Path) -> Result<Vec<FrameCamera>> {
         .frames
         .into_iter()
         .map(|f| {
+            f.intrinsics
+                .check_plausible()
+                .map_err(|e| IoError::invalid(path, format!("frame '{}': {e}", f.name)))?;
             let world_from_camera = match &f.world_from_camera {
                 Some(rows) => Some(
                     pose_from_rows(rows)

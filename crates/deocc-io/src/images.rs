@@ -13,6 +13,8 @@ use crate::error::{IoError, IoErrorKind, Result};
 
 /// Largest image side accepted (pixels): far beyond any sensor, far below a decompression bomb.
 pub const MAX_IMAGE_SIDE: u32 = 16_384;
+/// Largest image accepted (pixels): 64 megapixels, eight times a 4K frame.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 26;
 
 fn open_image(path: &Path) -> Result<image::DynamicImage> {
     open_image_expecting(path, None)
@@ -29,7 +31,11 @@ fn open_image_expecting(path: &Path, expected: Option<(u32, u32)>) -> Result<ima
             .with_guessed_format()
             .map_err(|e| IoError::new(path, e))
     };
-    let (w, h) = reader()?.into_dimensions().map_err(image_err)?;
+    // The header alone, without the decoder's memory limits (reading a size allocates nothing;
+    // the checks below say what is wrong in words).
+    let mut header = reader()?;
+    header.no_limits();
+    let (w, h) = header.into_dimensions().map_err(image_err)?;
     if let Some((ew, eh)) = expected {
         if (w, h) != (ew, eh) {
             return Err(IoError::invalid(
@@ -38,10 +44,13 @@ fn open_image_expecting(path: &Path, expected: Option<(u32, u32)>) -> Result<ima
             ));
         }
     }
-    if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+    if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE || w as u64 * h as u64 > MAX_IMAGE_PIXELS {
         return Err(IoError::invalid(
             path,
-            format!("image is {w}x{h}, larger than {MAX_IMAGE_SIDE} pixels a side"),
+            format!(
+                "image is {w}x{h}, larger than {MAX_IMAGE_SIDE} pixels a side or {} megapixels",
+                MAX_IMAGE_PIXELS >> 20
+            ),
         ));
     }
     reader()?.decode().map_err(image_err)

@@ -282,3 +282,109 @@ fn obj_and_stl_meshes_load() {
     assert!(err_text(read_mesh(&bad)).contains("out of range"));
     assert!(err_text(read_mesh(Path::new("x.fbx"))).contains("unknown mesh format"));
 }
+
+/// A PLY header that declares far more rows than the file can hold is refused before anything is
+/// allocated (2^44 vertices in a 300-byte file, and u64::MAX).
+#[test]
+fn lying_ply_headers_are_refused_before_allocating() {
+    let dir = tempfile::tempdir().unwrap();
+    for count in ["17592186044416", "18446744073709551615", "9999999999999"] {
+        for format in ["binary_little_endian", "ascii"] {
+            let path = dir.path().join("lie.ply");
+            let mut bytes = format!(
+                "ply\nformat {format} 1.0\nelement vertex {count}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+            )
+            .into_bytes();
+            bytes.extend_from_slice(&[0u8; 120]);
+            std::fs::write(&path, &bytes).unwrap();
+            let e = deocc_io::ply::read_ply(&path).unwrap_err().to_string();
+            assert!(
+                e.contains("lie.ply") && e.contains("declares"),
+                "{count} {format}: {e}"
+            );
+        }
+    }
+}
+
+/// The CRC-32 of PNG chunks.
+fn crc32(data: &[u8]) -> u32 {
+    let mut crc = 0xffff_ffffu32;
+    for &b in data {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0xedb8_8320
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
+/// A PNG whose header claims a size other than the camera's (or a decompression bomb: 15,000 x
+/// 15,000 pixels in a few hundred bytes) is refused from its header, before decoding.
+#[test]
+fn png_sizes_are_checked_before_decoding() {
+    use deocc_io::images::{read_depth_png_expecting, read_rgb_png, write_rgb_png};
+    let dir = tempfile::tempdir().unwrap();
+    let small = dir.path().join("small.png");
+    write_rgb_png(&small, &image::RgbImage::new(4, 3)).unwrap();
+    let mut png = std::fs::read(&small).unwrap();
+    // IHDR is the first chunk: length (4), type (4), width (4), height (4), ..., CRC after 13 bytes.
+    png[16..20].copy_from_slice(&15_000u32.to_be_bytes());
+    png[20..24].copy_from_slice(&15_000u32.to_be_bytes());
+    let crc = crc32(&png[12..29]);
+    png[29..33].copy_from_slice(&crc.to_be_bytes());
+    let bomb = dir.path().join("bomb.png");
+    std::fs::write(&bomb, &png).unwrap();
+    let e = read_depth_png_expecting(&bomb, Some((640, 480)))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("bomb.png") && e.contains("15000x15000"), "{e}");
+    let e = read_rgb_png(&bomb).unwrap_err().to_string();
+    assert!(e.contains("bomb.png") && e.contains("larger than"), "{e}");
+}
+
+/// Cameras whose numbers are implausible (a unit mistake) or not representable are refused,
+/// naming cameras.json.
+#[test]
+fn implausible_cameras_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cameras.json");
+    let frame = |k: &str, t: &str| {
+        format!(
+            r#"{{"frames":[{{"name":"a","intrinsics":{k},"world_from_camera":[[1,0,0,{t}],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}}]}}"#
+        )
+    };
+    let ok_k = r#"{"fx":500,"fy":500,"cx":320,"cy":240,"width":640,"height":480}"#;
+    for (k, t, expect) in [
+        (
+            r#"{"fx":1e-30,"fy":500,"cx":320,"cy":240,"width":640,"height":480}"#,
+            "0",
+            "fx",
+        ),
+        (
+            r#"{"fx":500,"fy":500,"cx":1e30,"cy":240,"width":640,"height":480}"#,
+            "0",
+            "principal point",
+        ),
+        (ok_k, "1e39", "translation"),
+        (
+            r#"{"fx":500,"fy":500,"cx":320,"cy":240,"width":99999,"height":480}"#,
+            "0",
+            "image size",
+        ),
+    ] {
+        std::fs::write(&path, frame(k, t)).unwrap();
+        let e = deocc_io::cameras::read_cameras_json(&path)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("cameras.json") && e.contains(expect),
+            "{k} {t}: {e}"
+        );
+    }
+    std::fs::write(&path, frame(ok_k, "0.5")).unwrap();
+    assert!(deocc_io::cameras::read_cameras_json(&path).is_ok());
+}

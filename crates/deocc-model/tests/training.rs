@@ -170,3 +170,86 @@ fn fused_adamw_step_follows_the_adamw_formulas() {
         assert_ne!(got, w0[name], "{name} moved");
     }
 }
+
+/// A `train.json` must name its model, may hold no unknown field, and every value is in range.
+#[test]
+fn train_configs_are_checked() {
+    let good = serde_json::to_value(TrainConfig {
+        model: GlDotConfig::tiny(),
+        mask_threshold: 0.5,
+        ..TrainConfig::default()
+    })
+    .unwrap();
+    assert!(TrainConfig::from_json(&good.to_string()).is_ok());
+    let e = TrainConfig::from_json("{}").unwrap_err();
+    assert!(e.contains("model"), "{e}");
+    let with = |key: &str, value: serde_json::Value| {
+        let mut v = good.clone();
+        v[key] = value;
+        TrainConfig::from_json(&v.to_string()).unwrap_err()
+    };
+    assert!(with("mask_treshold", 1.0.into()).contains("mask_treshold"));
+    assert!(with("inference_samples", 100_000.into()).contains("inference_samples"));
+    assert!(with("checkpoint_every", 0.into()).contains("checkpoint_every"));
+    assert!(with("batch_size", 0.into()).contains("batch_size"));
+    assert!(with("learning_rate", serde_json::Value::from(-1.0)).contains("learning_rate"));
+    let mut v = good.clone();
+    v["model"]["patch"] = 0.into();
+    assert!(TrainConfig::from_json(&v.to_string())
+        .unwrap_err()
+        .contains("patch"));
+    let mut v = good.clone();
+    v["model"]["cond_patch"] = 0.into();
+    assert!(TrainConfig::from_json(&v.to_string())
+        .unwrap_err()
+        .contains("cond_patch"));
+}
+
+/// Weights with NaN values, and a checkpoint whose EMA lacks a tensor, are refused at load and
+/// at resume, naming the file.
+#[test]
+fn broken_weights_are_refused() {
+    let data = tiny_pairs();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = TrainConfig {
+        model: GlDotConfig::tiny(),
+        batch_size: 2,
+        steps: 1,
+        mask_threshold: 0.5,
+        ..TrainConfig::default()
+    };
+    let mut t = Trainer::open(dir.path(), cfg.clone(), &Device::Cpu).unwrap();
+    t.step(&data).unwrap();
+    t.checkpoint(dir.path()).unwrap();
+    let ema = dir.path().join("ema.safetensors");
+    let mut tensors = candle_core::safetensors::load(&ema, &Device::Cpu).unwrap();
+    let original = tensors.clone();
+    let name = tensors.keys().next().unwrap().clone();
+    let nan = (tensors[&name].zeros_like().unwrap() + f64::NAN).unwrap();
+    tensors.insert(name.clone(), nan);
+    candle_core::safetensors::save(&tensors, &ema).unwrap();
+    let e = GlDotCompleter::from_dir(dir.path(), &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("non-finite") && e.contains(&name), "{e}");
+    let e = Trainer::open(dir.path(), cfg.clone(), &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("ema.safetensors") && e.contains("non-finite"),
+        "{e}"
+    );
+    let mut missing = original.clone();
+    missing.remove(&name);
+    candle_core::safetensors::save(&missing, &ema).unwrap();
+    let e = Trainer::open(dir.path(), cfg, &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("ema.safetensors") && e.contains("missing tensor"),
+        "{e}"
+    );
+}

@@ -198,7 +198,7 @@ pub fn check_scene_extent(scene: &SceneInput, radius_m: f32) -> Result<(), Pipel
     let m = nalgebra::Point3::new(median(0), median(1), median(2));
     for (f, c) in scene.frames.iter().zip(&centres) {
         let d = (c - m).norm();
-        if !(d <= radius_m) {
+        if d.is_nan() || d > radius_m {
             return Err(PipelineError::input(
                 scene.dir.join("cameras.json"),
                 format!(
@@ -284,5 +284,6 @@ fn make_report(
             "icp"
         },
         registration: registration.clone(),
+        peak_rss_mib: report::peak_rss_mib(),
     }
 }

@@ -87,4 +87,14 @@ pub struct RunReport {
     pub poses: &'static str,
     /// Per-frame ICP figures for pose-free input.
     pub registration: Vec<FrameRegistration>,
+    /// The process's peak resident memory when the run ended (Linux `VmHWM`), MiB.
+    pub peak_rss_mib: Option<f64>,
+}
+
+/// The process's peak resident set size so far (Linux: `VmHWM` of /proc/self/status), MiB.
+pub fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
 }

@@ -368,3 +368,62 @@ fn options_from_json_are_checked() {
         );
     }
 }
+
+/// A frame whose pose puts it far from the others is refused before anything is reconstructed
+/// (it would spread the scene, and the plane fill's grid, over kilometres), naming the frame.
+#[test]
+fn a_frame_far_from_the_others_is_refused() {
+    let rendered = small_scene();
+    let mut scene = rendered.scene_input();
+    let chain = CompleterChain::single(RulesCompleter::default());
+    let name = scene.frames[2].name.clone();
+    scene.frames[2]
+        .camera
+        .world_from_camera
+        .translation
+        .vector
+        .x += 1000.0;
+    let e = deocc_pipeline::run(&scene, &chain, &PipelineOptions::default(), &Vec::new())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("cameras.json") && e.contains(&name), "{e}");
+    // Within the radius it runs.
+    let mut near = rendered.scene_input();
+    near.frames[2].camera.world_from_camera.translation.vector.x += 0.5;
+    assert!(deocc_pipeline::run(&near, &chain, &PipelineOptions::default(), &Vec::new()).is_ok());
+}
+
+/// Frames fused into the voxel grid one at a time give the same cloud, bit for bit, as
+/// downsampling every frame's points at once.
+#[test]
+fn incremental_fusion_equals_downsampling_everything() {
+    use deocc_geometry::depth::backproject;
+    use deocc_geometry::voxel::voxel_downsample;
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let incremental = deocc_pipeline::reconstruct::reconstruct(&scene, 0.005).unwrap();
+    let mut all = deocc_geometry::PointCloud::default();
+    for f in &scene.frames {
+        let (mut c, px) = backproject(&f.depth, &f.camera).unwrap();
+        let rgb = f.rgb.as_raw();
+        c.colors = Some(
+            px.iter()
+                .map(|&i| {
+                    [
+                        rgb[3 * i as usize],
+                        rgb[3 * i as usize + 1],
+                        rgb[3 * i as usize + 2],
+                    ]
+                })
+                .collect(),
+        );
+        let ids = &f.instances.as_ref().unwrap().ids;
+        c.instance = Some(px.iter().map(|&i| ids[i as usize] as u32).collect());
+        c.generated = Some(vec![0; c.len()]);
+        all.append(&c);
+    }
+    let at_once = voxel_downsample(&all, 0.005).unwrap();
+    assert!(incremental.len() > 1000);
+    assert_eq!(incremental, at_once);
+}

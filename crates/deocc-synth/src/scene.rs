@@ -325,9 +325,11 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
     );
     let mut taken = Vec::new();
     let half = (size.x / 2.0 - 0.03, size.y / 2.0 - 0.03);
-    for k in 0..n_objects + user_meshes.len() {
-        let (category, shape) = if k >= n_objects {
-            let m = &user_meshes[k - n_objects];
+    // User meshes first, so that they find room (the scene is generated around them), and an
+    // error when one cannot be placed: a user's mesh is never silently left out.
+    let n_user = user_meshes.len();
+    for k in 0..n_objects + n_user {
+        let (category, shape) = if let Some(m) = user_meshes.get(k) {
             (
                 Category::UserMesh,
                 shapes::Shape {
@@ -347,6 +349,18 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
         };
         let Some((x, y)) = find_spot(&mut r, half, (0.0, 0.0), shape.footprint_radius, &taken)
         else {
+            if let Some(u) = config.user_meshes.get(k) {
+                return Err(SynthError::Config(format!(
+                    "{}: a mesh {} m across (footprint radius {:.2} m) does not fit on this \
+                     scene's {:.2} x {:.2} m table top; give a smaller size (at most about {:.2} m)",
+                    u.path.display(),
+                    u.size_m,
+                    shape.footprint_radius,
+                    size.x,
+                    size.y,
+                    (half.0.min(half.1) * std::f32::consts::SQRT_2).max(0.0)
+                )));
+            }
             continue;
         };
         taken.push((x, y, shape.footprint_radius));
@@ -424,20 +438,40 @@ fn load_user_meshes(config: &SceneConfig) -> Result<Vec<(TriMesh, f32, f32)>, Sy
             let (lo, hi) = mesh
                 .bounds()
                 .ok_or_else(|| SynthError::Config(format!("{}: empty mesh", u.path.display())))?;
+            // In f64: coordinates near f32's limits (or its denormals) have extents f32 cannot
+            // hold.
+            let (lo, hi) = (lo.cast::<f64>(), hi.cast::<f64>());
             let extent = (hi - lo).max();
-            if extent <= 0.0 || u.size_m.is_nan() || u.size_m <= 0.0 {
+            if !(extent.is_finite() && extent > 0.0) {
                 return Err(SynthError::Config(format!(
-                    "{}: degenerate mesh or size",
+                    "{}: the mesh's extent ({extent:e}) is not a positive finite size",
                     u.path.display()
                 )));
             }
-            let s = u.size_m / extent;
+            if !(u.size_m.is_finite() && u.size_m > 0.0) {
+                return Err(SynthError::Config(format!(
+                    "{}: size {} m must be positive",
+                    u.path.display(),
+                    u.size_m
+                )));
+            }
+            let s = f64::from(u.size_m) / extent;
             let c = nalgebra::center(&lo, &hi);
-            let mesh = mesh
-                .translated(Vector3::new(-c.x, -c.y, -lo.z))
-                .scaled(Vector3::repeat(s));
-            let radius = ((hi.x - lo.x).hypot(hi.y - lo.y)) * s / 2.0;
-            Ok((mesh, radius, (hi.z - lo.z) * s))
+            let vertices = mesh
+                .vertices
+                .iter()
+                .map(|v| {
+                    let v = v.cast::<f64>();
+                    nalgebra::Point3::new((v.x - c.x) * s, (v.y - c.y) * s, (v.z - lo.z) * s)
+                        .cast::<f32>()
+                })
+                .collect();
+            let mesh = TriMesh {
+                vertices,
+                triangles: mesh.triangles,
+            };
+            let radius = (((hi.x - lo.x).hypot(hi.y - lo.y)) * s / 2.0) as f32;
+            Ok((mesh, radius, ((hi.z - lo.z) * s) as f32))
         })
         .collect()
 }

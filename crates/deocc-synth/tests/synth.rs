@@ -320,3 +320,67 @@ fn structure_ground_truth_lies_only_on_faces_towards_the_room() {
         "the floor's top is sampled ({floor_top} points)"
     );
 }
+
+/// User meshes: coordinates near f32's limits or among its denormals are scaled in f64, and a
+/// mesh too large for the table is an error, never silently left out.
+#[test]
+fn user_meshes_are_placed_or_refused() {
+    use deocc_synth::scene::{generate_scene, SceneConfig, UserMesh};
+    use deocc_synth::shapes::Category;
+    let dir = tempfile::tempdir().unwrap();
+    let cube = |name: &str, s: f32| {
+        let path = dir.path().join(name);
+        let mut obj = String::new();
+        for (x, y, z) in [
+            (0, 0, 0),
+            (1, 0, 0),
+            (1, 1, 0),
+            (0, 1, 0),
+            (0, 0, 1),
+            (1, 0, 1),
+            (1, 1, 1),
+            (0, 1, 1),
+        ] {
+            obj += &format!(
+                "v {} {} {}\n",
+                x as f32 * s - s / 2.0,
+                y as f32 * s,
+                z as f32 * s
+            );
+        }
+        obj += "f 1 2 3 4\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
+        std::fs::write(&path, obj).unwrap();
+        path
+    };
+    let scene_with = |path: &std::path::Path, size_m: f32, seed: u64| {
+        let cfg = SceneConfig {
+            views: 1,
+            user_meshes: vec![UserMesh {
+                path: path.to_path_buf(),
+                size_m,
+            }],
+            ..SceneConfig::default()
+        };
+        generate_scene(&cfg, seed)
+    };
+    let huge = cube("huge.obj", 3e38);
+    let tiny = cube("tiny.obj", 1e-40);
+    let unit = cube("unit.obj", 1.0);
+    for (path, size) in [(&huge, 0.2), (&tiny, 0.2), (&unit, 0.3)] {
+        for seed in 0..8 {
+            let scene = scene_with(path, size, seed).unwrap();
+            assert!(
+                scene
+                    .objects
+                    .iter()
+                    .any(|o| o.category == Category::UserMesh),
+                "{} at {size} m, seed {seed}: left out",
+                path.display()
+            );
+        }
+    }
+    for size in [0.8, 1.9] {
+        let e = scene_with(&unit, size, 0).unwrap_err().to_string();
+        assert!(e.contains("unit.obj") && e.contains("does not fit"), "{e}");
+    }
+}

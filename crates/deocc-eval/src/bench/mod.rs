@@ -2,6 +2,7 @@
 //! writes. The peers' scripts are built into the binary.
 
 pub mod geometry;
+pub mod memory;
 pub mod model;
 pub mod synth;
 pub mod timing;

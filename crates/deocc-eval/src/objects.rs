@@ -1,0 +1,315 @@
+//! Per-object 3-D figures: how much of each object's hidden surface its *own* points cover.
+//!
+//! A scene-level completeness lets a neighbour's or the table's fill "complete" a hidden bottle;
+//! here each ground-truth object is scored only with the predicted points of the instances that
+//! are that object. Predicted instances are matched to ground-truth objects by a majority vote of
+//! their observed points (each observed point votes for the object of its nearest ground-truth
+//! point within 1 cm), so the figures hold for the default segmenter's ids too.
+//!
+//! Every completer runs on the same scenes ([`object_benchmark`]): `none` (the observed cloud),
+//! `rules`, `gldot` (which declines crops wider than 0.6 m) and `gldot,rules` (those go to the
+//! rules), without the plane fill, so that the rows differ only by the completer.
+
+use std::collections::BTreeMap;
+
+use deocc_completion::CompleterChain;
+use deocc_geometry::{KdIndex, PointCloud, Provenance};
+use deocc_synth::shapes::Category;
+use serde::Serialize;
+
+use crate::stats::{compare, mean, Comparison};
+use crate::EvalError;
+
+/// An observed point votes for a ground-truth object when it lies this close to one of its
+/// points (metres).
+const VOTE_DISTANCE_M: f32 = 0.01;
+/// A hidden ground-truth point is covered when an own point lies this close (metres).
+pub const COVER_DISTANCE_M: f32 = 0.02;
+/// Distances are clipped here in the mean (metres): an object with no own point near a hidden
+/// part scores this, not the distance to the far side of the room.
+const CLIP_M: f32 = 0.2;
+/// Objects with fewer hidden ground-truth points are not scored.
+const MIN_HIDDEN_POINTS: usize = 30;
+
+/// One object of one scene.
+#[derive(Debug, Clone, Serialize)]
+pub struct ObjectScore {
+    pub scene_seed: u64,
+    pub instance_id: u16,
+    pub category: String,
+    pub furniture: bool,
+    pub hidden_points: usize,
+    /// Fraction of the hidden ground-truth points within [`COVER_DISTANCE_M`] of the object's
+    /// own predicted points.
+    pub hidden_recall: f64,
+    /// Mean distance from the hidden ground-truth points to the object's own points, clipped at
+    /// 0.2 m.
+    pub hidden_completeness_m: f64,
+}
+
+/// Generated points of one provenance and how many lie on a true surface.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct GeneratedAccuracy {
+    pub points: usize,
+    /// Fraction within [`COVER_DISTANCE_M`] of some ground-truth point.
+    pub within_2cm: f64,
+}
+
+/// Scores every non-structure object of a scene with hidden surface (see the module docs).
+/// `gt` carries instance ids; `seen[i]` says whether some view sees ground-truth point `i`.
+pub fn object_scores(
+    prediction: &PointCloud,
+    gt: &PointCloud,
+    seen: &[bool],
+    categories: &BTreeMap<u16, Category>,
+    scene_seed: u64,
+) -> Result<(Vec<ObjectScore>, BTreeMap<String, GeneratedAccuracy>), EvalError> {
+    let gt_ids = gt
+        .instance
+        .as_deref()
+        .ok_or_else(|| EvalError::Data("the ground truth carries no instance ids".into()))?;
+    let index = KdIndex::build(&gt.positions)?;
+    let near = index.nearest_batch(&prediction.positions);
+    let codes = prediction
+        .generated
+        .as_deref()
+        .map(<[u8]>::to_vec)
+        .unwrap_or_else(|| vec![0; prediction.len()]);
+    let pred_ids = prediction
+        .instance
+        .as_deref()
+        .map(<[u32]>::to_vec)
+        .unwrap_or_else(|| vec![0; prediction.len()]);
+    // Predicted instance -> ground-truth object, by the observed points' votes.
+    let mut votes: BTreeMap<u32, BTreeMap<u32, usize>> = BTreeMap::new();
+    for (i, n) in near.iter().enumerate() {
+        if codes[i] == Provenance::Observed.code()
+            && pred_ids[i] != 0
+            && n.distance_sq <= VOTE_DISTANCE_M * VOTE_DISTANCE_M
+        {
+            *votes
+                .entry(pred_ids[i])
+                .or_default()
+                .entry(gt_ids[n.index as usize])
+                .or_default() += 1;
+        }
+    }
+    let object_of: BTreeMap<u32, u32> = votes
+        .into_iter()
+        .filter_map(|(p, v)| {
+            v.into_iter()
+                .max_by(|a, b| a.1.cmp(&b.1).then(b.0.cmp(&a.0)))
+                .map(|(g, _)| (p, g))
+        })
+        .collect();
+    // Own points of every ground-truth object.
+    let mut own: BTreeMap<u32, Vec<nalgebra::Point3<f32>>> = BTreeMap::new();
+    for (i, p) in prediction.positions.iter().enumerate() {
+        if let Some(&g) = object_of.get(&pred_ids[i]) {
+            own.entry(g).or_default().push(*p);
+        }
+    }
+    // Hidden ground truth per object.
+    let mut hidden: BTreeMap<u32, Vec<nalgebra::Point3<f32>>> = BTreeMap::new();
+    for (i, p) in gt.positions.iter().enumerate() {
+        if !seen[i] {
+            hidden.entry(gt_ids[i]).or_default().push(*p);
+        }
+    }
+    let mut scores = Vec::new();
+    for (&g, pts) in &hidden {
+        let Some(&category) = categories.get(&(g as u16)) else {
+            continue;
+        };
+        if category.is_structure() || pts.len() < MIN_HIDDEN_POINTS {
+            continue;
+        }
+        let dists: Vec<f32> = match own.get(&g) {
+            Some(o) if !o.is_empty() => KdIndex::build(o)?.nearest_distances(pts),
+            _ => vec![f32::INFINITY; pts.len()],
+        };
+        scores.push(ObjectScore {
+            scene_seed,
+            instance_id: g as u16,
+            category: category.name().to_string(),
+            furniture: matches!(
+                category,
+                Category::Chair | Category::Table | Category::Shelf
+            ),
+            hidden_points: pts.len(),
+            hidden_recall: dists.iter().filter(|&&d| d <= COVER_DISTANCE_M).count() as f64
+                / pts.len() as f64,
+            hidden_completeness_m: mean(dists.iter().map(|&d| d.min(CLIP_M) as f64)),
+        });
+    }
+    let mut accuracy: BTreeMap<String, GeneratedAccuracy> = BTreeMap::new();
+    for p in [Provenance::Model, Provenance::Rules, Provenance::PlaneFill] {
+        let mine: Vec<usize> = (0..prediction.len())
+            .filter(|&i| codes[i] == p.code())
+            .collect();
+        if mine.is_empty() {
+            continue;
+        }
+        let close = mine
+            .iter()
+            .filter(|&&i| near[i].distance_sq <= COVER_DISTANCE_M * COVER_DISTANCE_M)
+            .count();
+        accuracy.insert(
+            p.name().to_string(),
+            GeneratedAccuracy {
+                points: mine.len(),
+                within_2cm: close as f64 / mine.len() as f64,
+            },
+        );
+    }
+    Ok((scores, accuracy))
+}
+
+/// One completer's row: objects' hidden recall and completeness, overall and by group.
+#[derive(Debug, Clone, Serialize)]
+pub struct CompleterRow {
+    pub completer: String,
+    pub objects: usize,
+    pub hidden_recall: f64,
+    pub hidden_completeness_m: f64,
+    pub hidden_recall_tabletop: f64,
+    pub hidden_recall_furniture: f64,
+    /// Generated points by provenance and the fraction on a true surface.
+    pub generated: BTreeMap<String, GeneratedAccuracy>,
+    pub objects_per_second: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ObjectReport {
+    pub benchmark: String,
+    pub scenes: usize,
+    pub segmenter: String,
+    pub rows: Vec<CompleterRow>,
+    /// Hidden recall of each completer against the rules completer, per object (paired,
+    /// bootstrap over scenes).
+    pub recall_vs_rules: BTreeMap<String, Comparison>,
+    pub recall_vs_rules_tabletop: BTreeMap<String, Comparison>,
+    pub recall_vs_rules_furniture: BTreeMap<String, Comparison>,
+}
+
+/// `deocc eval objects`: every named chain on the same bench-v1 scenes with the default
+/// segmenter, plane fill off; `tick` after each scene.
+pub fn object_benchmark(
+    chains: &[(String, CompleterChain)],
+    opts: &deocc_pipeline::PipelineOptions,
+    scenes: usize,
+    tick: &mut dyn FnMut(),
+) -> Result<ObjectReport, EvalError> {
+    use deocc_pipeline::instances::ensure_instances;
+    use deocc_pipeline::segment::ConvexitySegmenter;
+    let preset = deocc_synth::dataset::bench_v1();
+    let n = scenes.min(preset.seeds.len());
+    let opts = deocc_pipeline::PipelineOptions {
+        complete_planes: false,
+        ..opts.clone()
+    };
+    let segmenter = ConvexitySegmenter::default();
+    let mut per_chain: Vec<Vec<ObjectScore>> = vec![Vec::new(); chains.len() + 1];
+    let mut generated: Vec<BTreeMap<String, (usize, usize)>> =
+        vec![BTreeMap::new(); chains.len() + 1];
+    let mut timing = vec![(0usize, 0f64); chains.len() + 1];
+    for &seed in &preset.seeds[..n] {
+        let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        let categories: BTreeMap<u16, Category> = rendered
+            .scene
+            .objects
+            .iter()
+            .map(|o| (o.instance_id, o.category))
+            .collect();
+        let mut scene = crate::scenes::unlabelled(rendered.scene_input());
+        ensure_instances(&mut scene, &segmenter)?;
+        let gt = &rendered.ground_truth;
+        let empty = CompleterChain::default();
+        for (k, chain) in std::iter::once(&empty)
+            .chain(chains.iter().map(|(_, c)| c))
+            .enumerate()
+        {
+            let out = deocc_pipeline::run(&scene, chain, &opts, &Vec::new())?;
+            let (scores, acc) =
+                object_scores(&out.completed, &gt.cloud, &gt.seen, &categories, seed)?;
+            per_chain[k].extend(scores);
+            for (name, a) in acc {
+                let e = generated[k].entry(name).or_default();
+                e.0 += a.points;
+                e.1 += (a.within_2cm * a.points as f64).round() as usize;
+            }
+            timing[k].0 += out.report.objects_completed;
+            timing[k].1 += out.report.timings.total_s;
+        }
+        tick();
+    }
+    let names: Vec<String> = std::iter::once("none".to_string())
+        .chain(chains.iter().map(|(n, _)| n.clone()))
+        .collect();
+    let rows = names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let s = &per_chain[k];
+            let of = |keep: &dyn Fn(&ObjectScore) -> bool| {
+                mean(s.iter().filter(|o| keep(o)).map(|o| o.hidden_recall))
+            };
+            CompleterRow {
+                completer: name.clone(),
+                objects: s.len(),
+                hidden_recall: of(&|_| true),
+                hidden_completeness_m: mean(s.iter().map(|o| o.hidden_completeness_m)),
+                hidden_recall_tabletop: of(&|o| !o.furniture),
+                hidden_recall_furniture: of(&|o| o.furniture),
+                generated: generated[k]
+                    .iter()
+                    .map(|(p, &(pts, close))| {
+                        (
+                            p.clone(),
+                            GeneratedAccuracy {
+                                points: pts,
+                                within_2cm: close as f64 / pts.max(1) as f64,
+                            },
+                        )
+                    })
+                    .collect(),
+                objects_per_second: timing[k].0 as f64 / timing[k].1.max(1e-9),
+            }
+        })
+        .collect();
+    // Paired against the rules row (objects are the same in every row: same scenes, same
+    // segmentation, scored in the same order).
+    let rules_k = names.iter().position(|n| n == "rules");
+    let mut recall_vs_rules = BTreeMap::new();
+    let mut recall_vs_rules_tabletop = BTreeMap::new();
+    let mut recall_vs_rules_furniture = BTreeMap::new();
+    if let Some(rk) = rules_k {
+        for (k, name) in names.iter().enumerate().filter(|&(k, _)| k != rk) {
+            let (a, b) = (&per_chain[k], &per_chain[rk]);
+            let pick = |keep: &dyn Fn(&ObjectScore) -> bool| {
+                let ks: Vec<usize> = (0..a.len().min(b.len())).filter(|&i| keep(&a[i])).collect();
+                compare(
+                    &ks.iter().map(|&i| a[i].hidden_recall).collect::<Vec<_>>(),
+                    &ks.iter().map(|&i| b[i].hidden_recall).collect::<Vec<_>>(),
+                    &ks.iter()
+                        .map(|&i| a[i].scene_seed as u32)
+                        .collect::<Vec<_>>(),
+                    1000,
+                    7,
+                )
+            };
+            recall_vs_rules.insert(name.clone(), pick(&|_| true));
+            recall_vs_rules_tabletop.insert(name.clone(), pick(&|o| !o.furniture));
+            recall_vs_rules_furniture.insert(name.clone(), pick(&|o| o.furniture));
+        }
+    }
+    Ok(ObjectReport {
+        benchmark: preset.name,
+        scenes: n,
+        segmenter: "default (ConvexitySegmenter)".into(),
+        rows,
+        recall_vs_rules,
+        recall_vs_rules_tabletop,
+        recall_vs_rules_furniture,
+    })
+}
