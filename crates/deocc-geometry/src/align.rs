@@ -222,6 +222,13 @@ pub fn icp(
         ));
     }
     let max_d2 = (options.max_correspondence_m as f64).powi(2);
+    // Correspondences are searched in Morton order (neighbouring queries share tree nodes in
+    // cache); the moments are sums over all points, so only their rounding depends on it.
+    let source: Vec<Point3<f32>> = crate::knn::morton_order(source)
+        .into_iter()
+        .map(|i| source[i as usize])
+        .collect();
+    let source = source.as_slice();
     let mut transform = *initial;
     let mut moved: Vec<Point3<f32>> = source
         .par_iter()

@@ -491,3 +491,34 @@ fn projector_agrees_with_project_world() {
         }
     }
 }
+
+/// Answering queries in Morton order changes nothing but the speed: every query gets the same
+/// neighbour as a brute-force search, and the order is a permutation.
+#[test]
+fn nearest_batch_in_morton_order_matches_brute_force() {
+    use deocc_geometry::knn::morton_order;
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let pts: Vec<nalgebra::Point3<f32>> = (0..2000)
+        .map(|_| nalgebra::Point3::new(rng.random(), rng.random::<f32>() * 3.0, rng.random()))
+        .collect();
+    let queries: Vec<nalgebra::Point3<f32>> = (0..700)
+        .map(|_| nalgebra::Point3::new(rng.random(), rng.random::<f32>() * 3.0, rng.random()))
+        .collect();
+    let mut order = morton_order(&queries);
+    let index = deocc_geometry::KdIndex::build(&pts).unwrap();
+    let got = index.nearest_batch(&queries);
+    for (q, nb) in queries.iter().zip(&got) {
+        let best = pts
+            .iter()
+            .map(|p| (p - q).norm_squared())
+            .fold(f32::INFINITY, f32::min);
+        assert!(
+            (nb.distance_sq - best).abs() <= 1e-6,
+            "{} vs {best}",
+            nb.distance_sq
+        );
+    }
+    order.sort_unstable();
+    assert_eq!(order, (0..700).collect::<Vec<u32>>());
+}
