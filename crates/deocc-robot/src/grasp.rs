@@ -1,0 +1,425 @@
+//! Antipodal grasp candidates on a target's points, checked for collision against the whole
+//! scene: GPD's candidate generation without its learned classifier.
+//!
+//! 1. The target's points are thinned to a voxel grid (3 mm) and get PCA normals (about 1 cm
+//!    neighbourhoods).
+//! 2. At each of up to `seeds` points the closing axis is the point's normal; the approach turns
+//!    about it in `approaches` steps (approaches from below the horizon's `max_upward` are not
+//!    tried) and the palm stands at `depths` from the seed.
+//! 3. The target's points inside the closing region fix the opening (their extent along the
+//!    closing axis, plus a margin each side) and the centring; the opening must fit the gripper.
+//! 4. Each jaw needs `min_jaw_points` points within `jaw_band_m` of where it touches, and a share
+//!    of them whose normal lies inside the friction cone (`friction_deg`) around the closing axis.
+//! 5. No scene point may lie inside a finger or the palm.
+//! 6. The contact angle ([`closure_angle`], the evaluator's criterion on the planning cloud)
+//!    must be inside the cone.
+//! 7. Score = the geometric mean of the two jaws' in-cone shares, times a support term
+//!    (min(1, points between the jaws / 60)), times 1 - angle / cone; sorted, non-maximum suppressed (3 cm and 30
+//!    degrees) and cut to the top `top_k`.
+
+use deocc_geometry::voxel::voxel_downsample;
+use deocc_geometry::{normals::estimate_normals_with_index, KdIndex, PointCloud};
+use nalgebra::{Point3, Rotation3, Vector3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::gripper::{classify, Grasp, GripperConfig, Part};
+use crate::RobotError;
+
+/// Plans grasps on a target inside a scene. Implement it to plug in another planner.
+pub trait GraspPlanner: Send + Sync {
+    fn name(&self) -> &str;
+    /// Grasps on `target` (its points, world frame), best first, checked against `scene` (every
+    /// point of the scene, the target's included).
+    fn plan(&self, scene: &[Point3<f32>], target: &[Point3<f32>])
+        -> Result<Vec<Grasp>, RobotError>;
+}
+
+/// The antipodal planner's settings (metres, degrees).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GraspOptions {
+    pub gripper: GripperConfig,
+    /// Voxel size the target is thinned to before sampling.
+    pub voxel_m: f32,
+    /// Neighbours per normal estimate (at 3 mm voxels about a 1 cm neighbourhood).
+    pub normal_neighbours: usize,
+    /// Seed points sampled on the target.
+    pub seeds: usize,
+    /// Approach directions tried about each closing axis.
+    pub approaches: usize,
+    /// Distances from the palm to the seed along the approach.
+    pub depths: Vec<f32>,
+    /// Half-angle of the friction cone a jaw's normals must fall in.
+    pub friction_deg: f32,
+    /// Points each jaw needs where it touches.
+    pub min_jaw_points: usize,
+    /// How far from a jaw's first contact a point still counts as under that jaw.
+    pub jaw_band_m: f32,
+    /// Free space left between each jaw and the target when the grasp is opened.
+    pub margin_m: f32,
+    /// Gravity's opposite in the cloud's frame (z up for the renderer's scenes).
+    pub up: [f32; 3],
+    /// Approaches with a larger upward component (moving up into the object) are not tried.
+    pub max_upward: f32,
+    /// Non-maximum suppression: a grasp closer than this and `nms_angle_deg` to a better one goes.
+    pub nms_distance_m: f32,
+    pub nms_angle_deg: f32,
+    /// Grasps returned.
+    pub top_k: usize,
+}
+
+impl Default for GraspOptions {
+    fn default() -> Self {
+        Self {
+            gripper: GripperConfig::default(),
+            voxel_m: 0.003,
+            normal_neighbours: 16,
+            seeds: 160,
+            approaches: 12,
+            depths: vec![0.015, 0.03, 0.045],
+            friction_deg: 20.0,
+            min_jaw_points: 6,
+            jaw_band_m: 0.004,
+            margin_m: 0.005,
+            up: [0.0, 0.0, 1.0],
+            max_upward: 0.3,
+            nms_distance_m: 0.03,
+            nms_angle_deg: 30.0,
+            top_k: 50,
+        }
+    }
+}
+
+impl GraspOptions {
+    pub fn validate(&self) -> Result<(), RobotError> {
+        self.gripper.validate()?;
+        let up = Vector3::from(self.up);
+        if !(up.norm().is_finite() && up.norm() > 1e-6) {
+            return Err(RobotError::Config(format!(
+                "up = {:?}: must be a non-zero finite vector",
+                self.up
+            )));
+        }
+        if self.seeds == 0 || self.approaches == 0 || self.depths.is_empty() || self.top_k == 0 {
+            return Err(RobotError::Config(
+                "seeds, approaches, depths and top_k must not be zero or empty".into(),
+            ));
+        }
+        if !(self.voxel_m > 0.0 && self.voxel_m < 0.1) {
+            return Err(RobotError::Config(format!(
+                "voxel_m = {}: must be in (0, 0.1) m",
+                self.voxel_m
+            )));
+        }
+        if !(self.friction_deg > 0.0 && self.friction_deg < 90.0) {
+            return Err(RobotError::Config(format!(
+                "friction_deg = {}: must be in (0, 90)",
+                self.friction_deg
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The default planner (see the module docs).
+#[derive(Debug, Clone, Default)]
+pub struct AntipodalPlanner {
+    pub options: GraspOptions,
+}
+
+/// Any unit vector perpendicular to `n`.
+fn perpendicular(n: &Vector3<f32>) -> Vector3<f32> {
+    let helper = if n.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    n.cross(&helper).normalize()
+}
+
+/// A grasp's jaw contacts on a cloud: the indices of the points the upper and lower jaw meet
+/// first, and every point of the closing region with its gripper-frame coordinates.
+pub type JawContacts = (usize, usize, Vec<(usize, Vector3<f32>)>);
+
+/// The jaws' first contacts on `points` for a grasp: the point with the largest and the
+/// smallest closing coordinate inside the closing region, and the local coordinates of every
+/// point in the region. `None` when the region is empty.
+pub fn jaw_contacts(
+    grasp: &Grasp,
+    gripper: &GripperConfig,
+    points: &[Point3<f32>],
+    candidates: impl Iterator<Item = usize>,
+) -> Option<JawContacts> {
+    let mut inside = Vec::new();
+    for i in candidates {
+        let l = grasp.to_local(&points[i]);
+        if classify(&l, grasp.width, gripper) == Part::Closing {
+            inside.push((i, l));
+        }
+    }
+    let hi = inside.iter().max_by(|a, b| a.1.y.total_cmp(&b.1.y))?.0;
+    let lo = inside.iter().min_by(|a, b| a.1.y.total_cmp(&b.1.y))?.0;
+    Some((hi, lo, inside))
+}
+
+/// The worse of the two contact angles of a grasp whose jaws first meet points `hi` and `lo`
+/// (from [`jaw_contacts`]): each jaw is a flat plate pressing the patch of points within `band`
+/// of its first contact along the closing axis; the contact is the patch's centroid, its normal
+/// the patch's mean normal (each turned to face the jaw), and the angle is that between the
+/// normal and the line joining the two contacts (radians). `None` when the contacts coincide.
+pub fn closure_angle(
+    grasp: &Grasp,
+    points: &[Point3<f32>],
+    normals: &[Vector3<f32>],
+    inside: &[(usize, Vector3<f32>)],
+    hi: usize,
+    lo: usize,
+    band: f32,
+) -> Option<f32> {
+    let closing = grasp.closing();
+    let patch = |edge: f32, sign: f32| -> (Point3<f32>, Vector3<f32>) {
+        let mut c = Vector3::zeros();
+        let mut n = Vector3::zeros();
+        let mut k = 0.0f32;
+        for &(i, l) in inside {
+            if (l.y - edge).abs() <= band {
+                c += points[i].coords;
+                let ni = normals[i];
+                n += if ni.dot(&closing) * sign >= 0.0 {
+                    ni
+                } else {
+                    -ni
+                };
+                k += 1.0;
+            }
+        }
+        (Point3::from(c / k.max(1.0)), n)
+    };
+    let (yh, yl) = (grasp.to_local(&points[hi]).y, grasp.to_local(&points[lo]).y);
+    let (p, np) = patch(yh, 1.0);
+    let (q, nq) = patch(yl, -1.0);
+    let d = q - p;
+    let len = d.norm();
+    if len < 1e-6 {
+        return None;
+    }
+    let angle = |n: &Vector3<f32>| {
+        (n.dot(&d).abs() / (n.norm().max(1e-12) * len))
+            .min(1.0)
+            .acos()
+    };
+    Some(angle(&np).max(angle(&nq)))
+}
+
+impl GraspPlanner for AntipodalPlanner {
+    fn name(&self) -> &str {
+        "antipodal"
+    }
+
+    fn plan(
+        &self,
+        scene: &[Point3<f32>],
+        target: &[Point3<f32>],
+    ) -> Result<Vec<Grasp>, RobotError> {
+        let o = &self.options;
+        o.validate()?;
+        let g = &o.gripper;
+        if target.len() < 2 * o.min_jaw_points {
+            return Err(RobotError::Input(format!(
+                "the target has {} points; a grasp needs at least {}",
+                target.len(),
+                2 * o.min_jaw_points
+            )));
+        }
+        let thin = voxel_downsample(
+            &PointCloud::from_positions(target.to_vec()),
+            o.voxel_m as f64,
+        )?;
+        let pts = thin.positions;
+        let index = KdIndex::build(&pts)?;
+        let normals = estimate_normals_with_index(&pts, &index, o.normal_neighbours);
+        // Only the scene near the target can touch the gripper.
+        let (lo, hi) = bounds(&pts);
+        let reach = g.depth + g.palm_thickness + g.max_aperture + g.finger_width;
+        let near_scene: Vec<Point3<f32>> = scene
+            .iter()
+            .filter(|p| {
+                (0..3).all(|k| p[k] >= lo[k] - reach && p[k] <= hi[k] + reach) && p.x.is_finite()
+            })
+            .copied()
+            .collect();
+        let scene_index = if near_scene.is_empty() {
+            None
+        } else {
+            Some(KdIndex::build(&near_scene)?)
+        };
+        let up = Vector3::from(o.up).normalize();
+        let cos_cone = o.friction_deg.to_radians().cos();
+        let stride = (pts.len() / o.seeds).max(1);
+        let seeds: Vec<usize> = (0..pts.len()).step_by(stride).take(o.seeds).collect();
+        let search = g.max_aperture + g.depth + g.finger_height;
+        let mut candidates: Vec<Grasp> = seeds
+            .par_iter()
+            .flat_map_iter(|&s| {
+                let mut out = Vec::new();
+                let n = normals[s];
+                if n.norm_squared() < 0.5 {
+                    return out;
+                }
+                let local_ids: Vec<usize> = index
+                    .within(&pts[s], search)
+                    .into_iter()
+                    .map(|nb| nb.index as usize)
+                    .collect();
+                let u = perpendicular(&n);
+                let v = n.cross(&u);
+                for k in 0..o.approaches {
+                    let th = k as f32 * std::f32::consts::TAU / o.approaches as f32;
+                    let a = u * th.cos() + v * th.sin();
+                    if a.dot(&up) > o.max_upward {
+                        continue;
+                    }
+                    for &d in &o.depths {
+                        if let Some(gr) = self.candidate(
+                            &pts,
+                            &normals,
+                            &local_ids,
+                            pts[s] - a * d,
+                            a,
+                            n,
+                            cos_cone,
+                            &near_scene,
+                            scene_index.as_ref(),
+                        ) {
+                            out.push(gr);
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
+        Ok(non_maximum_suppression(
+            candidates,
+            o.nms_distance_m,
+            o.nms_angle_deg.to_radians(),
+            o.top_k,
+            g,
+        ))
+    }
+}
+
+impl AntipodalPlanner {
+    /// One candidate: the palm at `palm` (before centring), approach `a`, closing axis `n`.
+    #[allow(clippy::too_many_arguments)]
+    fn candidate(
+        &self,
+        pts: &[Point3<f32>],
+        normals: &[Vector3<f32>],
+        local_ids: &[usize],
+        palm: Point3<f32>,
+        a: Vector3<f32>,
+        n: Vector3<f32>,
+        cos_cone: f32,
+        scene: &[Point3<f32>],
+        scene_index: Option<&KdIndex>,
+    ) -> Option<Grasp> {
+        let o = &self.options;
+        let g = &o.gripper;
+        // Open fully, find the target's extent along the closing axis, then centre and close.
+        let open = Grasp::new(palm, a, n, g.max_aperture * 2.0, 0.0, [palm; 2]);
+        let (hi, lo, _) = jaw_contacts(&open, g, pts, local_ids.iter().copied())?;
+        let (yh, yl) = (open.to_local(&pts[hi]).y, open.to_local(&pts[lo]).y);
+        let width = yh - yl + 2.0 * o.margin_m;
+        // A sheet thinner than two voxels is no grasp (a pinch of a face's edge).
+        if width > g.max_aperture || yh - yl < 2.0 * o.voxel_m {
+            return None;
+        }
+        let centred = palm + n * ((yh + yl) / 2.0);
+        let grasp = Grasp::new(centred, a, n, width, 0.0, [pts[hi], pts[lo]]);
+        let (hi, lo, inside) = jaw_contacts(&grasp, g, pts, local_ids.iter().copied())?;
+        let (yh, yl) = (grasp.to_local(&pts[hi]).y, grasp.to_local(&pts[lo]).y);
+        let mut share = [0.0f32; 2];
+        for (side, edge) in [(0usize, yh), (1, yl)] {
+            let jaw: Vec<usize> = inside
+                .iter()
+                .filter(|(_, l)| (l.y - edge).abs() <= o.jaw_band_m)
+                .map(|&(i, _)| i)
+                .collect();
+            if jaw.len() < o.min_jaw_points {
+                return None;
+            }
+            let good = jaw
+                .iter()
+                .filter(|&&i| normals[i].dot(&n).abs() >= cos_cone)
+                .count();
+            share[side] = good as f32 / jaw.len() as f32;
+        }
+        if share[0] < 0.25 || share[1] < 0.25 {
+            return None;
+        }
+        // The evaluator's own criterion on the planning cloud: the contact angle must lie inside
+        // the friction cone.
+        let angle = closure_angle(&grasp, pts, normals, &inside, hi, lo, o.jaw_band_m)?;
+        let cone = o.friction_deg.to_radians();
+        if angle > cone {
+            return None;
+        }
+        if let Some(si) = scene_index {
+            let c = grasp.center(g);
+            let r = g.bounding_radius(width);
+            let hit = si.within(&c, r).into_iter().any(|nb| {
+                classify(&grasp.to_local(&scene[nb.index as usize]), width, g) == Part::Body
+            });
+            if hit {
+                return None;
+            }
+        }
+        let support = (inside.len() as f32 / 60.0).min(1.0);
+        let score = (share[0] * share[1]).sqrt() * support * (1.0 - angle / cone);
+        Some(Grasp::new(centred, a, n, width, score, [pts[hi], pts[lo]]))
+    }
+}
+
+fn bounds(pts: &[Point3<f32>]) -> (Point3<f32>, Point3<f32>) {
+    pts.iter().fold(
+        (
+            Point3::new(f32::MAX, f32::MAX, f32::MAX),
+            Point3::new(f32::MIN, f32::MIN, f32::MIN),
+        ),
+        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+    )
+}
+
+/// Keeps grasps best first, dropping one closer than `distance` (closing-region centres) and
+/// `angle` (radians) to a kept one; at most `top_k`. `sorted` must be best first.
+pub fn non_maximum_suppression(
+    sorted: Vec<Grasp>,
+    distance: f32,
+    angle: f32,
+    top_k: usize,
+    gripper: &GripperConfig,
+) -> Vec<Grasp> {
+    let mut kept: Vec<Grasp> = Vec::new();
+    for g in sorted {
+        if kept.len() >= top_k {
+            break;
+        }
+        let c = g.center(gripper);
+        let close = kept
+            .iter()
+            .any(|k| (k.center(gripper) - c).norm() < distance && k.rotation_angle_to(&g) < angle);
+        if !close {
+            kept.push(g);
+        }
+    }
+    kept
+}
+
+/// A rotation whose columns are approach, closing and height axes, for tests and callers that
+/// build grasps by hand.
+pub fn frame(approach: Vector3<f32>, closing: Vector3<f32>) -> Rotation3<f32> {
+    let z = approach.cross(&closing);
+    Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[approach, closing, z]))
+}

@@ -1,0 +1,547 @@
+//! Where an object of footprint `w x d` and height `h` can be put down.
+//!
+//! On each support plane (a horizontal surface within `max_tilt_deg` of level; gravity is `up`),
+//! a grid of `cell_m` cells. A cell is
+//! - **supported** when some point lies within `support_tolerance_m` of the plane in it;
+//! - **occupied** when some point lies over it from `gap_m` above the plane up to `overhead_m`
+//!   (the band the object needs is plane + 0.5 cm .. plane + h + 1 cm; a surface above the band
+//!   blocks it too, because a point cloud samples only the surfaces of solids: the object would
+//!   be inside or under that solid).
+//!
+//! A cell is **placeable** when the footprint centred on it lies inside the workspace (the
+//! plane's extent), at least `min_support` of the footprint's cells are supported, and no cell
+//! of the footprint dilated by `dilation_m` is occupied. The chosen placement maximises
+//! `min(clearance, clearance_cap_m) / clearance_cap_m - distance_weight * distance to the robot`
+//! (clearance: the distance from the cell to the nearest occupied cell; the robot: the first
+//! camera's position). The footprint is axis-aligned with the grid (x = width, y = depth).
+//!
+//! Cells where the cloud has no point at all were not seen; [`UnseenSpace`] says what to assume
+//! there: free and supported (optimistic), occupied (conservative), or nothing (as the points
+//! say: unsupported, not occupied), which completed clouds use.
+
+use deocc_geometry::normals::estimate_normals;
+use deocc_geometry::voxel::voxel_downsample;
+use deocc_geometry::PointCloud;
+use nalgebra::{Point3, Rotation3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::RobotError;
+
+/// What to assume in cells without any point.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UnseenSpace {
+    /// Supported and free: the optimistic reading of an observed cloud.
+    Free,
+    /// Occupied: the conservative reading of an observed cloud.
+    Occupied,
+    /// Only what the points say (no support, no obstacle): for completed clouds.
+    AsPoints,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PlaceOptions {
+    /// Object footprint, width (grid x) and depth (grid y), metres.
+    pub footprint: [f32; 2],
+    /// Object height, metres.
+    pub height: f32,
+    pub cell_m: f32,
+    pub support_tolerance_m: f32,
+    pub min_support: f32,
+    pub gap_m: f32,
+    /// Extra clearance above the object's height.
+    pub headroom_m: f32,
+    /// Surfaces up to this high over the plane block a cell (see the module docs).
+    pub overhead_m: f32,
+    pub dilation_m: f32,
+    pub max_tilt_deg: f32,
+    pub up: [f32; 3],
+    /// Points a plane needs to count as a support surface.
+    pub min_plane_points: usize,
+    pub clearance_cap_m: f32,
+    pub distance_weight: f32,
+}
+
+impl Default for PlaceOptions {
+    fn default() -> Self {
+        Self {
+            footprint: [0.08, 0.08],
+            height: 0.12,
+            cell_m: 0.01,
+            support_tolerance_m: 0.01,
+            min_support: 0.9,
+            gap_m: 0.005,
+            headroom_m: 0.01,
+            overhead_m: 0.6,
+            dilation_m: 0.01,
+            max_tilt_deg: 10.0,
+            up: [0.0, 0.0, 1.0],
+            min_plane_points: 300,
+            clearance_cap_m: 0.1,
+            distance_weight: 0.5,
+        }
+    }
+}
+
+impl PlaceOptions {
+    pub fn validate(&self) -> Result<(), RobotError> {
+        let [w, d] = self.footprint;
+        for (name, v) in [
+            ("footprint width", w),
+            ("footprint depth", d),
+            ("height", self.height),
+            ("cell_m", self.cell_m),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= 5.0) {
+                return Err(RobotError::Config(format!(
+                    "{name} = {v}: must be a positive size in metres, at most 5"
+                )));
+            }
+        }
+        if !(self.min_support > 0.0 && self.min_support <= 1.0) {
+            return Err(RobotError::Config(format!(
+                "min_support = {}: must be in (0, 1]",
+                self.min_support
+            )));
+        }
+        let up = Vector3::from(self.up);
+        if !(up.norm().is_finite() && up.norm() > 1e-6) {
+            return Err(RobotError::Config(format!(
+                "up = {:?}: must be a non-zero finite vector",
+                self.up
+            )));
+        }
+        Ok(())
+    }
+
+    /// The rotation taking `up` to +z (the frame the maps are built in).
+    pub fn level(&self) -> Rotation3<f32> {
+        let up = Vector3::from(self.up).normalize();
+        Rotation3::rotation_between(&up, &Vector3::z()).unwrap_or_else(|| {
+            // up = -z: a half turn about x.
+            Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI)
+        })
+    }
+}
+
+/// A horizontal support surface in the levelled frame: its height and extent.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SupportPlane {
+    pub height: f32,
+    /// `[x_min, y_min, x_max, y_max]`.
+    pub bounds: [f32; 4],
+    pub points: usize,
+}
+
+/// Horizontal planes of `points` (levelled by `opts.up`), largest first.
+pub fn find_support_planes(
+    points: &[Point3<f32>],
+    opts: &PlaceOptions,
+) -> Result<Vec<SupportPlane>, RobotError> {
+    opts.validate()?;
+    let level = opts.level();
+    let cloud = PointCloud::from_positions(points.iter().map(|p| level * p).collect());
+    let thin = voxel_downsample(&cloud, 0.01)?;
+    if thin.len() < 3 {
+        return Ok(Vec::new());
+    }
+    let normals = estimate_normals(&thin.positions, 12)?;
+    let cos = opts.max_tilt_deg.to_radians().cos();
+    let flat: Vec<Point3<f32>> = thin
+        .positions
+        .iter()
+        .zip(&normals)
+        .filter(|(_, n)| n.z.abs() >= cos)
+        .map(|(p, _)| *p)
+        .collect();
+    if flat.is_empty() {
+        return Ok(Vec::new());
+    }
+    let zmin = flat.iter().map(|p| p.z).fold(f32::INFINITY, f32::min);
+    let bin = |z: f32| ((z - zmin) / 0.01) as usize;
+    let nbins = bin(flat.iter().map(|p| p.z).fold(f32::MIN, f32::max)) + 1;
+    if nbins > 100_000 {
+        return Err(RobotError::Input(format!(
+            "the cloud spans {:.0} m vertically; is `up` right?",
+            nbins as f32 * 0.01
+        )));
+    }
+    let mut hist = vec![0usize; nbins];
+    for p in &flat {
+        hist[bin(p.z)] += 1;
+    }
+    let mut planes = Vec::new();
+    for b in 0..nbins {
+        let c = hist[b];
+        let left = if b > 0 { hist[b - 1] } else { 0 };
+        let right = hist.get(b + 1).copied().unwrap_or(0);
+        // A peak: the first of equal neighbours wins.
+        if c == 0 || c <= left || c < right {
+            continue;
+        }
+        let centre = zmin + (b as f32 + 0.5) * 0.01;
+        let members: Vec<&Point3<f32>> = flat
+            .iter()
+            .filter(|p| (p.z - centre).abs() <= 0.015)
+            .collect();
+        if members.len() < opts.min_plane_points / 10 {
+            // Thinned to 1 cm voxels: a plane of `min_plane_points` 3-5 mm points holds about a
+            // tenth as many voxels.
+            continue;
+        }
+        let height = members.iter().map(|p| p.z).sum::<f32>() / members.len() as f32;
+        let mut xs: Vec<f32> = members.iter().map(|p| p.x).collect();
+        let mut ys: Vec<f32> = members.iter().map(|p| p.y).collect();
+        xs.sort_by(f32::total_cmp);
+        ys.sort_by(f32::total_cmp);
+        let q = |v: &[f32], f: f32| v[((v.len() - 1) as f32 * f) as usize];
+        planes.push(SupportPlane {
+            height,
+            bounds: [q(&xs, 0.01), q(&ys, 0.01), q(&xs, 0.99), q(&ys, 0.99)],
+            points: members.len(),
+        });
+    }
+    planes.sort_by_key(|p| std::cmp::Reverse(p.points));
+    Ok(planes)
+}
+
+/// A placement map over one support plane (levelled frame).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PlaceMap {
+    pub plane: SupportPlane,
+    pub cell_m: f32,
+    pub nx: usize,
+    pub ny: usize,
+    /// Row-major (y rows, x columns).
+    pub support: Vec<bool>,
+    pub occupied: Vec<bool>,
+    /// Some point fell in the cell.
+    pub seen: Vec<bool>,
+    /// Some occupied cell lies under the dilated footprint centred here.
+    pub blocked: Vec<bool>,
+    pub placeable: Vec<bool>,
+}
+
+impl PlaceMap {
+    /// Centre of cell `i` (levelled frame, on the plane).
+    pub fn cell_center(&self, i: usize) -> Point3<f32> {
+        let (x, y) = (i % self.nx, i / self.nx);
+        Point3::new(
+            self.plane.bounds[0] + (x as f32 + 0.5) * self.cell_m,
+            self.plane.bounds[1] + (y as f32 + 0.5) * self.cell_m,
+            self.plane.height,
+        )
+    }
+
+    pub fn placeable_cells(&self) -> usize {
+        self.placeable.iter().filter(|&&p| p).count()
+    }
+}
+
+/// Summed-area table of a boolean grid: `sum(x0..x1, y0..y1)` counts true cells.
+struct Integral {
+    nx: usize,
+    s: Vec<u32>,
+}
+
+impl Integral {
+    fn new(grid: &[bool], nx: usize, ny: usize) -> Self {
+        let w = nx + 1;
+        let mut s = vec![0u32; w * (ny + 1)];
+        for y in 0..ny {
+            let mut row = 0u32;
+            for x in 0..nx {
+                row += grid[y * nx + x] as u32;
+                s[(y + 1) * w + x + 1] = s[y * w + x + 1] + row;
+            }
+        }
+        Self { nx, s }
+    }
+
+    /// True cells in the half-open box, clipped to the grid.
+    fn sum(&self, x0: isize, y0: isize, x1: isize, y1: isize) -> u32 {
+        let w = self.nx + 1;
+        let ny = self.s.len() / w - 1;
+        let cx = |v: isize| v.clamp(0, self.nx as isize) as usize;
+        let cy = |v: isize| v.clamp(0, ny as isize) as usize;
+        let (x0, x1, y0, y1) = (cx(x0), cx(x1), cy(y0), cy(y1));
+        if x1 <= x0 || y1 <= y0 {
+            return 0;
+        }
+        self.s[y1 * w + x1] + self.s[y0 * w + x0] - self.s[y0 * w + x1] - self.s[y1 * w + x0]
+    }
+}
+
+/// The map of `points` over `plane` (see the module docs).
+pub fn build_map(
+    points: &[Point3<f32>],
+    plane: &SupportPlane,
+    opts: &PlaceOptions,
+    unseen: UnseenSpace,
+) -> Result<PlaceMap, RobotError> {
+    opts.validate()?;
+    let [x0, y0, x1, y1] = plane.bounds;
+    let cell = opts.cell_m;
+    let nx = ((x1 - x0) / cell).ceil().max(0.0) as usize;
+    let ny = ((y1 - y0) / cell).ceil().max(0.0) as usize;
+    if nx == 0 || ny == 0 || nx * ny > 25_000_000 {
+        return Err(RobotError::Input(format!(
+            "support plane {:?} gives a {nx} x {ny} grid at {cell} m cells",
+            plane.bounds
+        )));
+    }
+    let level = opts.level();
+    let mut support = vec![false; nx * ny];
+    let mut occupied = vec![false; nx * ny];
+    let mut seen = vec![false; nx * ny];
+    for p in points {
+        let p = level * p;
+        let (fx, fy) = ((p.x - x0) / cell, (p.y - y0) / cell);
+        if !(fx >= 0.0 && fy >= 0.0 && fx < nx as f32 && fy < ny as f32) {
+            continue;
+        }
+        let i = fy as usize * nx + fx as usize;
+        let dz = p.z - plane.height;
+        if dz.abs() <= opts.support_tolerance_m {
+            support[i] = true;
+            seen[i] = true;
+        }
+        if dz > opts.gap_m && dz <= opts.overhead_m.max(opts.height + opts.headroom_m) {
+            occupied[i] = true;
+            seen[i] = true;
+        }
+    }
+    for i in 0..nx * ny {
+        if !seen[i] {
+            match unseen {
+                UnseenSpace::Free => support[i] = true,
+                UnseenSpace::Occupied => occupied[i] = true,
+                UnseenSpace::AsPoints => {}
+            }
+        }
+    }
+    let fw = (opts.footprint[0] / cell).round().max(1.0) as isize;
+    let fd = (opts.footprint[1] / cell).round().max(1.0) as isize;
+    let dil = (opts.dilation_m / cell).round() as isize;
+    let sup = Integral::new(&support, nx, ny);
+    let occ = Integral::new(&occupied, nx, ny);
+    let need = (opts.min_support * (fw * fd) as f32).ceil() as u32;
+    let mut blocked = vec![false; nx * ny];
+    let mut placeable = vec![false; nx * ny];
+    for y in 0..ny as isize {
+        for x in 0..nx as isize {
+            let (ax, ay) = (x - fw / 2, y - fd / 2);
+            let (bx, by) = (ax + fw, ay + fd);
+            let i = y as usize * nx + x as usize;
+            blocked[i] = occ.sum(ax - dil, ay - dil, bx + dil, by + dil) > 0;
+            let inside = ax >= 0 && ay >= 0 && bx <= nx as isize && by <= ny as isize;
+            placeable[i] = inside && !blocked[i] && sup.sum(ax, ay, bx, by) >= need;
+        }
+    }
+    Ok(PlaceMap {
+        plane: *plane,
+        cell_m: cell,
+        nx,
+        ny,
+        support,
+        occupied,
+        seen,
+        blocked,
+        placeable,
+    })
+}
+
+/// A chosen placement.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Placement {
+    /// Which map (support plane) of a planner's answer; 0 from [`choose_placement`].
+    pub plane: usize,
+    /// Cell index in that map.
+    pub cell: usize,
+    /// Where the footprint's centre goes (world frame, on the plane).
+    pub position: [f32; 3],
+    pub clearance_m: f32,
+    pub score: f32,
+}
+
+/// The best placeable cell of `map` for a robot at `robot` (world frame), or `None`.
+pub fn choose_placement(
+    map: &PlaceMap,
+    robot: &Point3<f32>,
+    opts: &PlaceOptions,
+) -> Option<Placement> {
+    let level = opts.level();
+    let r = level * robot;
+    // Distance (cells) to the nearest occupied cell by a two-pass chamfer transform.
+    let (nx, ny) = (map.nx, map.ny);
+    let big = f32::INFINITY;
+    let mut dist: Vec<f32> = map
+        .occupied
+        .iter()
+        .map(|&o| if o { 0.0 } else { big })
+        .collect();
+    let diag = std::f32::consts::SQRT_2;
+    for y in 0..ny {
+        for x in 0..nx {
+            let i = y * nx + x;
+            let mut d = dist[i];
+            if x > 0 {
+                d = d.min(dist[i - 1] + 1.0);
+            }
+            if y > 0 {
+                d = d.min(dist[i - nx] + 1.0);
+                if x > 0 {
+                    d = d.min(dist[i - nx - 1] + diag);
+                }
+                if x + 1 < nx {
+                    d = d.min(dist[i - nx + 1] + diag);
+                }
+            }
+            dist[i] = d;
+        }
+    }
+    for y in (0..ny).rev() {
+        for x in (0..nx).rev() {
+            let i = y * nx + x;
+            let mut d = dist[i];
+            if x + 1 < nx {
+                d = d.min(dist[i + 1] + 1.0);
+            }
+            if y + 1 < ny {
+                d = d.min(dist[i + nx] + 1.0);
+                if x + 1 < nx {
+                    d = d.min(dist[i + nx + 1] + diag);
+                }
+                if x > 0 {
+                    d = d.min(dist[i + nx - 1] + diag);
+                }
+            }
+            dist[i] = d;
+        }
+    }
+    let cap = opts.clearance_cap_m;
+    (0..nx * ny)
+        .filter(|&i| map.placeable[i])
+        .map(|i| {
+            let c = map.cell_center(i);
+            let clearance = (dist[i] * map.cell_m).min(cap);
+            let reach = (c.xy() - r.xy()).norm();
+            let score = clearance / cap - opts.distance_weight * reach;
+            (i, c, clearance, score)
+        })
+        .max_by(|a, b| a.3.total_cmp(&b.3).then(b.0.cmp(&a.0)))
+        .map(|(cell, c, clearance_m, score)| Placement {
+            plane: 0,
+            cell,
+            position: (level.inverse() * c).coords.into(),
+            clearance_m,
+            score,
+        })
+}
+
+/// Plans a placement on a cloud. Implement it to plug in another placer.
+pub trait PlacePlanner: Send + Sync {
+    fn name(&self) -> &str;
+    /// The map of every support plane (largest first) and the best placement over all of them.
+    fn plan(
+        &self,
+        points: &[Point3<f32>],
+        robot: &Point3<f32>,
+    ) -> Result<(Vec<PlaceMap>, Option<Placement>), RobotError>;
+}
+
+/// The default placer: the grid maps of the module docs on every support plane found.
+#[derive(Debug, Clone)]
+pub struct GridPlacer {
+    pub options: PlaceOptions,
+    pub unseen: UnseenSpace,
+}
+
+impl PlacePlanner for GridPlacer {
+    fn name(&self) -> &str {
+        "grid"
+    }
+
+    fn plan(
+        &self,
+        points: &[Point3<f32>],
+        robot: &Point3<f32>,
+    ) -> Result<(Vec<PlaceMap>, Option<Placement>), RobotError> {
+        let planes = find_support_planes(points, &self.options)?;
+        if planes.is_empty() {
+            return Err(RobotError::Input(format!(
+                "no horizontal support surface (within {} degrees of level, at least {} points) \
+                 in the cloud; check `up`",
+                self.options.max_tilt_deg, self.options.min_plane_points
+            )));
+        }
+        let [w, d] = self.options.footprint;
+        let biggest = planes
+            .iter()
+            .map(|p| (p.bounds[2] - p.bounds[0]).max(p.bounds[3] - p.bounds[1]))
+            .fold(0.0f32, f32::max);
+        if w.min(d) > biggest {
+            return Err(RobotError::Input(format!(
+                "footprint {w} x {d} m is larger than every support surface (largest {biggest:.2} m)"
+            )));
+        }
+        let mut maps = Vec::new();
+        let mut best: Option<Placement> = None;
+        for (k, plane) in planes.iter().enumerate() {
+            let map = build_map(points, plane, &self.options, self.unseen)?;
+            if let Some(mut p) = choose_placement(&map, robot, &self.options) {
+                if best.as_ref().is_none_or(|b| p.score > b.score) {
+                    p.plane = k;
+                    best = Some(p);
+                }
+            }
+            maps.push(map);
+        }
+        Ok((maps, best))
+    }
+}
+
+/// Scores of a predicted map against the ground-truth map over the same grid.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MapScores {
+    /// IoU of the placeable cells over the workspace.
+    pub iou: f64,
+    /// Share of predicted placeable cells whose dilated footprint meets true geometry.
+    pub false_placeable_rate: f64,
+    pub placeable_cells: usize,
+    pub true_placeable_cells: usize,
+}
+
+/// Compares `pred` with `truth` over the cells where `workspace` holds.
+pub fn compare_maps(
+    pred: &PlaceMap,
+    truth: &PlaceMap,
+    workspace: &[bool],
+) -> Result<MapScores, RobotError> {
+    if pred.nx != truth.nx || pred.ny != truth.ny || workspace.len() != pred.placeable.len() {
+        return Err(RobotError::Input(format!(
+            "maps of different grids: {} x {} against {} x {}",
+            pred.nx, pred.ny, truth.nx, truth.ny
+        )));
+    }
+    let (mut inter, mut union, mut pc, mut tc, mut bad) = (0usize, 0usize, 0usize, 0usize, 0);
+    for (i, _) in workspace.iter().enumerate().filter(|(_, &w)| w) {
+        let (p, t) = (pred.placeable[i], truth.placeable[i]);
+        inter += (p && t) as usize;
+        union += (p || t) as usize;
+        pc += p as usize;
+        tc += t as usize;
+        bad += (p && truth.blocked[i]) as usize;
+    }
+    Ok(MapScores {
+        iou: if union == 0 {
+            1.0
+        } else {
+            inter as f64 / union as f64
+        },
+        false_placeable_rate: if pc == 0 { 0.0 } else { bad as f64 / pc as f64 },
+        placeable_cells: pc,
+        true_placeable_cells: tc,
+    })
+}

@@ -1,0 +1,329 @@
+//! Grasp planner, analytic evaluator and placement maps on hand-built ground truth.
+
+use deocc_robot::grasp::frame;
+use deocc_robot::grasp_eval::{affordance_iou, precision, GraspOutcome, GroundTruthScene};
+use deocc_robot::place::{build_map, choose_placement, compare_maps, find_support_planes};
+use deocc_robot::{
+    AntipodalPlanner, Grasp, GraspPlanner, GripperConfig, PlaceOptions, UnseenSpace,
+};
+use nalgebra::{Point3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Surface samples with normals and an instance id.
+#[derive(Default)]
+struct Samples {
+    points: Vec<Point3<f32>>,
+    normals: Vec<Vector3<f32>>,
+    instance: Vec<u32>,
+}
+
+impl Samples {
+    fn push(&mut self, p: Point3<f32>, n: Vector3<f32>, id: u32) {
+        self.points.push(p);
+        self.normals.push(n);
+        self.instance.push(id);
+    }
+
+    /// A rectangle spanned by `u` and `v` from `origin`, `density` points per m^2.
+    fn rect(
+        &mut self,
+        r: &mut impl Rng,
+        origin: Point3<f32>,
+        u: Vector3<f32>,
+        v: Vector3<f32>,
+        id: u32,
+        density: f32,
+    ) {
+        let n = u.cross(&v).normalize();
+        let count = (u.cross(&v).norm() * density) as usize;
+        for _ in 0..count {
+            self.push(
+                origin + u * r.random::<f32>() + v * r.random::<f32>(),
+                n,
+                id,
+            );
+        }
+    }
+
+    /// A closed axis-aligned box from `lo` to `hi`.
+    fn cuboid(&mut self, r: &mut impl Rng, lo: Point3<f32>, hi: Point3<f32>, id: u32) {
+        let d = hi - lo;
+        let (x, y, z) = (
+            Vector3::new(d.x, 0.0, 0.0),
+            Vector3::new(0.0, d.y, 0.0),
+            Vector3::new(0.0, 0.0, d.z),
+        );
+        let k = 150_000.0;
+        self.rect(r, lo, y, x, id, k); // bottom, normal -z
+        self.rect(r, lo + z, x, y, id, k); // top
+        self.rect(r, lo, x, z, id, k); // front (-y)
+        self.rect(r, lo + y, z, x, id, k); // back (+y)
+        self.rect(r, lo, z, y, id, k); // left (-x)
+        self.rect(r, lo + x, y, z, id, k); // right (+x)
+    }
+
+    /// An upright closed cylinder standing on z = z0.
+    fn cylinder(&mut self, r: &mut impl Rng, c: Point3<f32>, radius: f32, h: f32, id: u32) {
+        let side = (std::f32::consts::TAU * radius * h * 150_000.0) as usize;
+        for _ in 0..side {
+            let a: f32 = r.random::<f32>() * std::f32::consts::TAU;
+            let n = Vector3::new(a.cos(), a.sin(), 0.0);
+            self.push(
+                c + n * radius + Vector3::z() * (h * r.random::<f32>()),
+                n,
+                id,
+            );
+        }
+        let cap = (std::f32::consts::PI * radius * radius * 150_000.0) as usize;
+        for top in [false, true] {
+            for _ in 0..cap {
+                let (a, s): (f32, f32) = (r.random::<f32>() * std::f32::consts::TAU, r.random());
+                let p = c + Vector3::new(a.cos(), a.sin(), 0.0) * (radius * s.sqrt());
+                let (z, n) = if top {
+                    (h, Vector3::z())
+                } else {
+                    (0.0, -Vector3::z())
+                };
+                self.push(p + Vector3::z() * z, n, id);
+            }
+        }
+    }
+
+    /// A table top (instance 1) at height `h` over [-0.5, 0.5]^2.
+    fn table(&mut self, r: &mut impl Rng, h: f32) {
+        self.rect(
+            r,
+            Point3::new(-0.5, -0.5, h),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.0),
+            1,
+            150_000.0,
+        );
+    }
+
+    fn of(&self, id: u32) -> Vec<Point3<f32>> {
+        self.points
+            .iter()
+            .zip(&self.instance)
+            .filter(|(_, &i)| i == id)
+            .map(|(p, _)| *p)
+            .collect()
+    }
+}
+
+/// The planner on the ground-truth cloud of lone boxes and cylinders: its best grasp holds at
+/// mu 0.4 on at least 90% of them (the evaluator's and planner's upper bound).
+#[test]
+fn ground_truth_cloud_grasps_unoccluded_boxes_and_cylinders() {
+    let planner = AntipodalPlanner::default();
+    let g = GripperConfig::default();
+    let mut r = ChaCha8Rng::seed_from_u64(5);
+    let (mut ok, mut total) = (0, 0);
+    for k in 0..20 {
+        let mut s = Samples::default();
+        let table = 0.75;
+        s.table(&mut r, table);
+        if k % 2 == 0 {
+            let (w, d, h) = (
+                r.random_range(0.03..0.07),
+                r.random_range(0.03..0.07),
+                r.random_range(0.05..0.2),
+            );
+            let c = Point3::new(r.random_range(-0.2..0.2), r.random_range(-0.2..0.2), table);
+            s.cuboid(
+                &mut r,
+                Point3::new(c.x - w / 2.0, c.y - d / 2.0, table),
+                Point3::new(c.x + w / 2.0, c.y + d / 2.0, table + h),
+                2,
+            );
+        } else {
+            let c = Point3::new(r.random_range(-0.2..0.2), r.random_range(-0.2..0.2), table);
+            let (radius, h) = (r.random_range(0.015..0.035), r.random_range(0.06..0.25));
+            s.cylinder(&mut r, c, radius, h, 2);
+        }
+        let gt = GroundTruthScene::new(&s.points, &s.normals, &s.instance).unwrap();
+        let grasps = planner.plan(&s.points, &s.of(2)).unwrap();
+        assert!(!grasps.is_empty(), "object {k}: no grasp");
+        assert!(grasps.windows(2).all(|w| w[0].score >= w[1].score));
+        total += 1;
+        let out = gt.evaluate(&grasps[0], 2, &g, 10);
+        if out.holds_at(0.4) {
+            ok += 1;
+        }
+    }
+    assert!(
+        ok * 10 >= total * 9,
+        "{ok} of {total} top grasps hold at mu 0.4"
+    );
+}
+
+fn lone_box() -> (Samples, Point3<f32>) {
+    let mut r = ChaCha8Rng::seed_from_u64(9);
+    let mut s = Samples::default();
+    s.table(&mut r, 0.75);
+    let c = Point3::new(0.0, 0.0, 0.75);
+    s.cuboid(
+        &mut r,
+        Point3::new(-0.025, -0.025, 0.75),
+        Point3::new(0.025, 0.025, 0.85),
+        2,
+    );
+    (s, c)
+}
+
+/// A top-down grasp across the box holds; the same grasp pushed down into the table collides, a
+/// finger through the box collides, and one in the air beside it is empty.
+#[test]
+fn evaluator_catches_collisions_and_empty_grasps() {
+    let (s, _) = lone_box();
+    let g = GripperConfig::default();
+    let gt = GroundTruthScene::new(&s.points, &s.normals, &s.instance).unwrap();
+    let down = -Vector3::z();
+    let across = Vector3::x();
+    let grasp = |z: f32, x: f32, width: f32| {
+        let r = frame(down, across);
+        Grasp::new(
+            Point3::new(x, 0.0, z),
+            r.matrix().column(0).into(),
+            r.matrix().column(1).into(),
+            width,
+            1.0,
+            [Point3::origin(); 2],
+        )
+    };
+    // Palm 3 cm above the top: fingers reach 2 cm down the box's sides.
+    let good = gt.evaluate(&grasp(0.88, 0.0, 0.07), 2, &g, 10);
+    assert!(good.holds_at(0.2), "{good:?}");
+    // Palm at the table: the fingers go through the table top.
+    assert_eq!(
+        gt.evaluate(&grasp(0.79, 0.0, 0.07), 2, &g, 10),
+        GraspOutcome::Collision
+    );
+    // Too narrow: the fingers stand inside the box.
+    assert_eq!(
+        gt.evaluate(&grasp(0.88, 0.0, 0.03), 2, &g, 10),
+        GraspOutcome::Collision
+    );
+    // 20 cm to the side, over the table: nothing between the jaws.
+    assert_eq!(
+        gt.evaluate(&grasp(0.88, 0.2, 0.07), 2, &g, 10),
+        GraspOutcome::Empty
+    );
+    // A grasp along a diagonal slice of the box's corner: the contact normals are 45 degrees off
+    // the closing line, so it holds only at mu >= 1.
+    let diag = Vector3::new(1.0, 1.0, 0.0).normalize();
+    let r = frame(down, diag);
+    let corner = Grasp::new(
+        Point3::new(0.02, -0.02, 0.88),
+        r.matrix().column(0).into(),
+        r.matrix().column(1).into(),
+        0.05,
+        1.0,
+        [Point3::origin(); 2],
+    );
+    match gt.evaluate(&corner, 2, &g, 10) {
+        GraspOutcome::Closure { mu, .. } => assert!(mu >= 1.0 - 1e-6, "mu {mu}"),
+        other => assert!(matches!(other, GraspOutcome::NoClosure), "{other:?}"),
+    }
+}
+
+#[test]
+fn precision_counts_missing_grasps_as_failures() {
+    let hold = GraspOutcome::Closure {
+        mu: 0.4,
+        contacts: [[0.0; 3]; 2],
+    };
+    let p = precision(&[hold, GraspOutcome::Collision], 4);
+    assert!(p.top1_at_04 && p.top1_at_08);
+    // precision@k for k = 1..4: 1, 1/2, 1/3, 1/4.
+    let expect = (1.0 + 0.5 + 1.0 / 3.0 + 0.25) / 4.0;
+    assert!((p.ap_04 - expect).abs() < 1e-9, "{}", p.ap_04);
+    // At mu 0.2 nothing holds.
+    assert!((p.ap - expect * 5.0 / 6.0).abs() < 1e-9, "{}", p.ap);
+    let none = precision(&[], 50);
+    assert!(!none.top1_at_04 && none.ap == 0.0);
+}
+
+#[test]
+fn affordance_iou_of_the_same_contacts_is_one_and_of_far_ones_zero() {
+    let (s, _) = lone_box();
+    let target = s.of(2);
+    let c = [[0.025, 0.0, 0.8], [-0.025, 0.0, 0.8]];
+    assert_eq!(affordance_iou(&target, &c, &c, 0.01).unwrap(), Some(1.0));
+    let far = [[0.0, 0.025, 0.76]];
+    let iou = affordance_iou(&target, &c, &far, 0.01).unwrap().unwrap();
+    assert!(iou < 0.05, "{iou}");
+    assert_eq!(affordance_iou(&target, &[], &[], 0.01).unwrap(), None);
+}
+
+/// A bad target (too few points) and a bad gripper are refused with the reason.
+#[test]
+fn planner_refuses_bad_input() {
+    let (s, _) = lone_box();
+    let err = AntipodalPlanner::default()
+        .plan(&s.points, &s.of(2)[..5])
+        .unwrap_err();
+    assert!(err.to_string().contains("5 points"), "{err}");
+    let mut p = AntipodalPlanner::default();
+    p.options.gripper.depth = -1.0;
+    let err = p.plan(&s.points, &s.of(2)).unwrap_err();
+    assert!(err.to_string().contains("gripper.depth"), "{err}");
+}
+
+/// Placement: the table is found at its height; cells over the box are not placeable, open
+/// table is; unseen cells follow the convention asked for; the chosen cell is valid.
+#[test]
+fn placement_map_over_a_table_with_a_box() {
+    let (s, _) = lone_box();
+    let opts = PlaceOptions {
+        footprint: [0.06, 0.04],
+        height: 0.1,
+        ..Default::default()
+    };
+    let planes = find_support_planes(&s.points, &opts).unwrap();
+    let table = planes[0];
+    assert!((table.height - 0.75).abs() < 0.005, "{table:?}");
+    assert!(
+        table.bounds[0] < -0.45 && table.bounds[2] > 0.45,
+        "{table:?}"
+    );
+    let map = build_map(&s.points, &table, &opts, UnseenSpace::AsPoints).unwrap();
+    let cell_at = |x: f32, y: f32| {
+        let cx = ((x - table.bounds[0]) / map.cell_m) as usize;
+        let cy = ((y - table.bounds[1]) / map.cell_m) as usize;
+        cy * map.nx + cx
+    };
+    assert!(!map.placeable[cell_at(0.0, 0.0)], "on the box");
+    assert!(!map.placeable[cell_at(0.05, 0.0)], "touching the box");
+    assert!(map.placeable[cell_at(0.2, 0.2)], "open table");
+    assert!(
+        !map.placeable[cell_at(0.485, 0.0)],
+        "footprint over the edge"
+    );
+    let robot = Point3::new(0.0, -1.5, 1.3);
+    let p = choose_placement(&map, &robot, &opts).unwrap();
+    assert!(map.placeable[p.cell]);
+    assert!(p.clearance_m > 0.03, "{p:?}");
+    // Remove the table points around (0.3, 0.3): unseen there.
+    let hole: Vec<Point3<f32>> = s
+        .points
+        .iter()
+        .filter(|q| (q.x - 0.3).hypot(q.y - 0.3) > 0.08)
+        .copied()
+        .collect();
+    let free = build_map(&hole, &table, &opts, UnseenSpace::Free).unwrap();
+    let occupied = build_map(&hole, &table, &opts, UnseenSpace::Occupied).unwrap();
+    let as_points = build_map(&hole, &table, &opts, UnseenSpace::AsPoints).unwrap();
+    assert!(free.placeable[cell_at(0.3, 0.3)]);
+    assert!(!occupied.placeable[cell_at(0.3, 0.3)] && !as_points.placeable[cell_at(0.3, 0.3)]);
+    let workspace = vec![true; map.placeable.len()];
+    let same = compare_maps(&map, &map, &workspace).unwrap();
+    assert_eq!(same.iou, 1.0);
+    assert_eq!(same.false_placeable_rate, 0.0);
+    // A map that forgot the box: placeable over it, all of those false.
+    let no_box: Vec<Point3<f32>> = s.of(1);
+    let blind = build_map(&no_box, &table, &opts, UnseenSpace::AsPoints).unwrap();
+    let sc = compare_maps(&blind, &map, &workspace).unwrap();
+    assert!(sc.iou < 1.0 && sc.false_placeable_rate > 0.0, "{sc:?}");
+}
