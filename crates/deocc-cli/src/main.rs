@@ -10,6 +10,7 @@ mod completers;
 mod eval;
 mod progress;
 mod report;
+mod robot;
 mod run;
 mod synth;
 mod train;
@@ -73,6 +74,13 @@ enum Command {
     /// Measure speed against a peer and write a report.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Grasps on one object of a scene: antipodal parallel-jaw grasps planned on the completed
+    /// cloud, checked for collision against the whole scene; JSON (pose, width, score) and a
+    /// picture of the gripper outlines.
+    Grasp(robot::GraspArgs),
+    /// Where an object of a given footprint and height can be put down: a placement map on each
+    /// horizontal support surface of the completed cloud and the best spot; JSON and a picture.
+    Place(robot::PlaceArgs),
 }
 
 fn main() -> ExitCode {
@@ -92,6 +100,8 @@ fn main() -> ExitCode {
         Command::Train(a) => train::run(a),
         Command::Eval(c) => eval::run(c),
         Command::Export(a) => train::export(a),
+        Command::Grasp(a) => robot::grasp(a),
+        Command::Place(a) => robot::place(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -107,9 +107,12 @@ pub struct ScenesArgs {
     count: usize,
     #[arg(long, default_value_t = 0, conflicts_with = "preset")]
     seed: u64,
-    /// A named preset instead of --count/--seed and the scene options: bench-v1, bench-v1-small.
+    /// A named preset instead of --count/--seed and the scene options: bench-v1, bench-v1-small, chairs-v1, pickup-v1, place-v1.
     #[arg(long)]
     preset: Option<String>,
+    /// With --preset: only its first N scenes.
+    #[arg(long, requires = "preset")]
+    first: Option<usize>,
     /// Output folder (scene_000000/, ..., manifest.json, stats.json).
     #[arg(long)]
     out: PathBuf,
@@ -184,7 +187,13 @@ fn create_dir(dir: &Path) -> Result<()> {
 
 fn scenes(a: ScenesArgs) -> Result<()> {
     let p = match &a.preset {
-        Some(name) => preset(name)?,
+        Some(name) => {
+            let mut p = preset(name)?;
+            if let Some(n) = a.first {
+                p.seeds.truncate(n);
+            }
+            p
+        }
         None => Preset {
             name: "custom".into(),
             config: a.options.config()?,

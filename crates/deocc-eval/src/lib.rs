@@ -10,9 +10,11 @@
 
 pub mod amodal;
 pub mod bench;
+pub mod grasp;
 pub mod masks;
 pub mod objects;
 pub mod perception;
+pub mod place;
 pub mod reconstruction;
 pub mod scenes;
 pub mod stats;

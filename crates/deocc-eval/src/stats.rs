@@ -157,3 +157,24 @@ mod tests {
         assert_eq!(same.ci95, [0.0, 0.0]);
     }
 }
+
+/// A mean with its 95% bootstrap interval (items resampled with replacement).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Estimate {
+    pub items: usize,
+    pub mean: f64,
+    pub ci95: [f64; 2],
+}
+
+/// [`Estimate`] of the finite values of `v`, `resamples` draws from `seed`.
+pub fn estimate(v: &[f64], resamples: usize, seed: u64) -> Estimate {
+    let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    let clusters: Vec<u32> = (0..v.len() as u32).collect();
+    let zero = vec![0.0; v.len()];
+    let c = compare(&v, &zero, &clusters, resamples, seed);
+    Estimate {
+        items: v.len(),
+        mean: c.method,
+        ci95: c.ci95,
+    }
+}

@@ -13,6 +13,7 @@
 //! | view selection | [`views`] | [`views::select_views`] |
 //! | crops and completion | [`crops`], [`complete`] | [`complete::complete_instances`] |
 //! | alignment and fusion | [`fuse`] | [`fuse::fuse_completion`] |
+//! | support: hidden bottoms down to the surface below | [`support`] | [`support::extend_to_support`] |
 //! | carving | [`carve`] | [`carve::keep_hidden`] |
 //! | planes | [`planes`] | [`planes::complete_planes`] |
 //! | output folder | [`output`] | [`output::write_output`] |
@@ -39,6 +40,7 @@ pub mod render;
 pub mod report;
 pub mod segment;
 pub mod stats;
+pub mod support;
 pub mod views;
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -149,6 +151,20 @@ pub fn run(
             accepted: false,
             reason: format!("declined: {}", d.reasons.join("; ")),
         });
+    }
+    if opts.extend_to_support && scene.posed && registration.is_empty() {
+        let ids: BTreeSet<u16> = selected.keys().copied().collect();
+        let mut both = observed.clone();
+        both.append(&generated);
+        let extension = support::extend_to_support(
+            &both,
+            &ids,
+            &support::SupportOptions {
+                up: opts.up.into(),
+                ..Default::default()
+            },
+        );
+        generated.append(&extension);
     }
     let mut points_carved = 0;
     if opts.carve_generated {

@@ -28,6 +28,11 @@ pub struct PipelineOptions {
     /// Also complete objects no other object hides: their far side is hidden in every view, and
     /// the completer's far-side depth fills it.
     pub complete_unoccluded: bool,
+    /// Extend completed objects whose bottom is hidden down to the surface they stand on
+    /// ([`crate::support`]; posed scenes only).
+    pub extend_to_support: bool,
+    /// Gravity's opposite in the scene's world frame (for the support stage).
+    pub up: [f32; 3],
     /// Masks smaller than this (pixels) are not completed.
     pub min_visible_px: usize,
     /// Fill the hidden parts of large planes (floor, walls) where the views agree they are
@@ -53,6 +58,8 @@ impl Default for PipelineOptions {
             batch: 8,
             seed: 0,
             complete_unoccluded: false,
+            extend_to_support: true,
+            up: [0.0, 0.0, 1.0],
             min_visible_px: 200,
             complete_planes: true,
             carve_generated: true,
@@ -116,6 +123,13 @@ impl PipelineOptions {
             return Err(bad(
                 "max_scene_radius_m",
                 format!("{} must be positive and finite", self.max_scene_radius_m),
+            ));
+        }
+        let up = nalgebra::Vector3::from(self.up);
+        if !(up.norm().is_finite() && up.norm() > 1e-6) {
+            return Err(bad(
+                "up",
+                format!("{:?} must be a non-zero finite vector", self.up),
             ));
         }
         if self.min_visible_px == 0 {

@@ -7,7 +7,9 @@
 //!    about it in `approaches` steps (approaches from below the horizon's `max_upward` are not
 //!    tried) and the palm stands at `depths` from the seed.
 //! 3. The target's points inside the closing region fix the opening (their extent along the
-//!    closing axis, plus a margin each side) and the centring; the opening must fit the gripper.
+//!    closing axis plus `open_margin_m` each side, at most the aperture, at least `margin_m` each
+//!    side) and the centring.
+//!    No target point may come closer to the palm than `palm_clearance_m`.
 //! 4. Each jaw needs `min_jaw_points` points within `jaw_band_m` of where it touches, and a share
 //!    of them whose normal lies inside the friction cone (`friction_deg`) around the closing axis.
 //! 5. No scene point may lie inside a finger or the palm.
@@ -56,8 +58,13 @@ pub struct GraspOptions {
     pub min_jaw_points: usize,
     /// How far from a jaw's first contact a point still counts as under that jaw.
     pub jaw_band_m: f32,
-    /// Free space left between each jaw and the target when the grasp is opened.
+    /// Least free space between each jaw and the target's points when the grasp is opened.
     pub margin_m: f32,
+    /// The opening aimed for each side (up to the aperture): a cloud's hidden side is uncertain,
+    /// so the gripper opens wider than the points need when it can.
+    pub open_margin_m: f32,
+    /// Least distance from the palm to the target's points between the jaws.
+    pub palm_clearance_m: f32,
     /// Gravity's opposite in the cloud's frame (z up for the renderer's scenes).
     pub up: [f32; 3],
     /// Approaches with a larger upward component (moving up into the object) are not tried.
@@ -82,6 +89,8 @@ impl Default for GraspOptions {
             min_jaw_points: 6,
             jaw_band_m: 0.004,
             margin_m: 0.005,
+            open_margin_m: 0.02,
+            palm_clearance_m: 0.01,
             up: [0.0, 0.0, 1.0],
             max_upward: 0.3,
             nms_distance_m: 0.03,
@@ -331,14 +340,17 @@ impl AntipodalPlanner {
         let open = Grasp::new(palm, a, n, g.max_aperture * 2.0, 0.0, [palm; 2]);
         let (hi, lo, _) = jaw_contacts(&open, g, pts, local_ids.iter().copied())?;
         let (yh, yl) = (open.to_local(&pts[hi]).y, open.to_local(&pts[lo]).y);
-        let width = yh - yl + 2.0 * o.margin_m;
         // A sheet thinner than two voxels is no grasp (a pinch of a face's edge).
-        if width > g.max_aperture || yh - yl < 2.0 * o.voxel_m {
+        if yh - yl + 2.0 * o.margin_m > g.max_aperture || yh - yl < 2.0 * o.voxel_m {
             return None;
         }
+        let width = (yh - yl + 2.0 * o.open_margin_m.max(o.margin_m)).min(g.max_aperture);
         let centred = palm + n * ((yh + yl) / 2.0);
         let grasp = Grasp::new(centred, a, n, width, 0.0, [pts[hi], pts[lo]]);
         let (hi, lo, inside) = jaw_contacts(&grasp, g, pts, local_ids.iter().copied())?;
+        if inside.iter().any(|(_, l)| l.x < o.palm_clearance_m) {
+            return None;
+        }
         let (yh, yl) = (grasp.to_local(&pts[hi]).y, grasp.to_local(&pts[lo]).y);
         let mut share = [0.0f32; 2];
         for (side, edge) in [(0usize, yh), (1, yl)] {

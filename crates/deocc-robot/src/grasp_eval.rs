@@ -28,7 +28,10 @@ pub const FRICTIONS: [f32; 6] = [0.2, 0.4, 0.6, 0.8, 1.0, 1.2];
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", tag = "outcome")]
 pub enum GraspOutcome {
-    Collision,
+    /// A ground-truth point of instance `with` lies inside a finger or the palm.
+    Collision {
+        with: u32,
+    },
     Empty,
     /// Not in force closure at the largest friction of [`FRICTIONS`].
     NoClosure,
@@ -101,10 +104,12 @@ impl<'a> GroundTruthScene<'a> {
             .into_iter()
             .map(|nb| nb.index as usize)
             .collect();
-        if near.iter().any(|&i| {
+        if let Some(&i) = near.iter().find(|&&i| {
             classify(&grasp.to_local(&self.points[i]), grasp.width, gripper) == Part::Body
         }) {
-            return GraspOutcome::Collision;
+            return GraspOutcome::Collision {
+                with: self.instance[i],
+            };
         }
         let on_target = near.into_iter().filter(|&i| self.instance[i] == target);
         let Some((hi, lo, inside)) = jaw_contacts(grasp, gripper, self.points, on_target) else {

@@ -9,6 +9,7 @@
 pub mod grasp;
 pub mod grasp_eval;
 pub mod gripper;
+pub mod picture;
 pub mod place;
 
 pub use grasp::{AntipodalPlanner, GraspOptions, GraspPlanner};

@@ -59,6 +59,9 @@ pub struct PlaceOptions {
     pub up: [f32; 3],
     /// Points a plane needs to count as a support surface.
     pub min_plane_points: usize,
+    /// Gaps in the support up to this wide are closed (dilation then erosion): a table seen at a
+    /// grazing angle has rows of cells no pixel lands in.
+    pub support_closing_m: f32,
     pub clearance_cap_m: f32,
     pub distance_weight: f32,
 }
@@ -78,6 +81,7 @@ impl Default for PlaceOptions {
             max_tilt_deg: 10.0,
             up: [0.0, 0.0, 1.0],
             min_plane_points: 300,
+            support_closing_m: 0.02,
             clearance_cap_m: 0.1,
             distance_weight: 0.5,
         }
@@ -273,6 +277,25 @@ impl Integral {
     }
 }
 
+/// Morphological closing of a grid with a (2k+1)^2 box: gaps up to 2k cells wide are filled,
+/// outer edges stay where they were.
+fn close(grid: &[bool], nx: usize, ny: usize, k: isize) -> Vec<bool> {
+    let box_any = |g: &[bool]| -> Vec<bool> {
+        let s = Integral::new(g, nx, ny);
+        (0..nx * ny)
+            .map(|i| {
+                let (x, y) = ((i % nx) as isize, (i / nx) as isize);
+                s.sum(x - k, y - k, x + k + 1, y + k + 1) > 0
+            })
+            .collect()
+    };
+    let dilated = box_any(grid);
+    let outside: Vec<bool> = dilated.iter().map(|&d| !d).collect();
+    // Erosion of the dilation = complement of the dilation of its complement; cells beyond the
+    // grid count as support so the table's own edge survives where the grid ends.
+    box_any(&outside).iter().map(|&o| !o).collect()
+}
+
 /// The map of `points` over `plane` (see the module docs).
 pub fn build_map(
     points: &[Point3<f32>],
@@ -305,12 +328,17 @@ pub fn build_map(
         let dz = p.z - plane.height;
         if dz.abs() <= opts.support_tolerance_m {
             support[i] = true;
-            seen[i] = true;
         }
         if dz > opts.gap_m && dz <= opts.overhead_m.max(opts.height + opts.headroom_m) {
             occupied[i] = true;
-            seen[i] = true;
         }
+    }
+    let k = (opts.support_closing_m / cell).round() as isize;
+    if k > 0 {
+        support = close(&support, nx, ny, k);
+    }
+    for i in 0..nx * ny {
+        seen[i] = support[i] || occupied[i];
     }
     for i in 0..nx * ny {
         if !seen[i] {

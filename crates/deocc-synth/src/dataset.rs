@@ -33,7 +33,7 @@ use crate::ground_truth::{sample_surfaces, seen_flags, GroundTruth};
 use crate::render::{
     add_sensor_noise, rasterize_coverage, render_scene, shade, Frame, PixelBox, SceneTriangles,
 };
-use crate::scene::{generate_scene, CameraPath, Scene, SceneConfig};
+use crate::scene::{generate_scene, CameraPath, Scene, SceneConfig, SceneKind};
 use crate::{Result, SynthError};
 
 /// One object's visibility in one view.
@@ -79,6 +79,9 @@ pub struct SceneInfo {
     pub visibility: Vec<Visibility>,
     pub ground_truth_points: usize,
     pub ground_truth_seen: usize,
+    /// The object a task scene is about (the grasp target of pickup-v1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target: Option<u16>,
 }
 
 /// Everything rendered for one view.
@@ -389,6 +392,7 @@ pub fn write_scene(
             .collect(),
         ground_truth_points: gt.cloud.len(),
         ground_truth_seen: gt.seen.iter().filter(|&&s| s).count(),
+        target: rendered.scene.target,
     };
     write_json(&dir.join("scene.json"), &info)?;
     Ok(info)
@@ -439,11 +443,45 @@ pub fn chairs_v1() -> Preset {
     }
 }
 
+/// `pickup-v1`: 120 table-top scenes, one robot-head view each, a graspable target hidden
+/// 5-95% behind a large box ([`crate::tasks::pickup_scene`]); seeds 9_200_000..9_200_120.
+pub fn pickup_v1() -> Preset {
+    Preset {
+        name: "pickup-v1".into(),
+        config: SceneConfig {
+            kind: SceneKind::Pickup,
+            views: 1,
+            camera_path: CameraPath::Single,
+            gt_points_per_m2: 2_000.0,
+            ..SceneConfig::default()
+        },
+        seeds: (9_200_000..9_200_120).collect(),
+    }
+}
+
+/// `place-v1`: 100 cluttered tables seen once from 1.5-2.5 m, at least 30% of the free table
+/// top hidden ([`crate::tasks::place_scene`]); seeds 9_300_000..9_300_100.
+pub fn place_v1() -> Preset {
+    Preset {
+        name: "place-v1".into(),
+        config: SceneConfig {
+            kind: SceneKind::Place,
+            views: 1,
+            camera_path: CameraPath::Single,
+            gt_points_per_m2: 2_000.0,
+            ..SceneConfig::default()
+        },
+        seeds: (9_300_000..9_300_100).collect(),
+    }
+}
+
 /// Named presets known to `deocc synth scenes --preset`.
 pub fn preset(name: &str) -> Result<Preset> {
     match name {
         "bench-v1" => Ok(bench_v1()),
         "chairs-v1" => Ok(chairs_v1()),
+        "pickup-v1" => Ok(pickup_v1()),
+        "place-v1" => Ok(place_v1()),
         "bench-v1-small" => {
             // The first 5 scenes of bench-v1 at 320x240: for tests and quick looks.
             let mut p = bench_v1();
@@ -455,7 +493,7 @@ pub fn preset(name: &str) -> Result<Preset> {
             Ok(p)
         }
         other => Err(SynthError::Config(format!(
-            "unknown preset '{other}' (known: bench-v1, bench-v1-small, chairs-v1)"
+            "unknown preset '{other}' (known: bench-v1, bench-v1-small, chairs-v1, pickup-v1, place-v1)"
         ))),
     }
 }

@@ -17,6 +17,7 @@ pub mod render;
 pub mod scene;
 pub mod shapes;
 pub mod sheet;
+pub mod tasks;
 
 use thiserror::Error;
 

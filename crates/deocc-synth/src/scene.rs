@@ -34,10 +34,26 @@ pub struct UserMesh {
     pub size_m: f32,
 }
 
+/// What kind of scene to build.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SceneKind {
+    /// A room corner with a table, chairs, things on the table and a shelf (bench-v1).
+    #[default]
+    Indoor,
+    /// A grasp target hidden behind a large occluder on a table, one robot-head view
+    /// ([`crate::tasks::pickup_scene`]).
+    Pickup,
+    /// A cluttered table whose free surface is partly hidden, one view
+    /// ([`crate::tasks::place_scene`]).
+    Place,
+}
+
 /// Everything that shapes a scene except its seed.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SceneConfig {
+    pub kind: SceneKind,
     pub width: u32,
     pub height: u32,
     pub hfov_deg: f32,
@@ -67,6 +83,7 @@ pub struct SceneConfig {
 impl Default for SceneConfig {
     fn default() -> Self {
         Self {
+            kind: SceneKind::Indoor,
             width: 640,
             height: 480,
             hfov_deg: 60.0,
@@ -121,6 +138,9 @@ pub struct Scene {
     pub cameras: Vec<Camera>,
     /// Centre of the table top, what the cameras look at.
     pub focus: Point3<f32>,
+    /// The object a task scene is about (the grasp target of `pickup` scenes).
+    pub target: Option<u16>,
+    pub table: Option<TablePose>,
 }
 
 /// A palette shared by all objects, so colour alone does not separate instances.
@@ -152,7 +172,7 @@ impl Scene {
     }
 }
 
-fn appearance(r: &mut impl Rng) -> Appearance {
+pub(crate) fn appearance(r: &mut impl Rng) -> Appearance {
     let color_a = PALETTE[r.random_range(0..PALETTE.len())];
     let color_b = PALETTE[r.random_range(0..PALETTE.len())];
     let texture = match r.random_range(0..4) {
@@ -175,7 +195,7 @@ fn appearance(r: &mut impl Rng) -> Appearance {
     }
 }
 
-fn place(mesh: TriMesh, x: f32, y: f32, z: f32, yaw: f32) -> TriMesh {
+pub(crate) fn place(mesh: TriMesh, x: f32, y: f32, z: f32, yaw: f32) -> TriMesh {
     mesh.transformed(&Isometry3::from_parts(
         nalgebra::Translation3::new(x, y, z),
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
@@ -183,7 +203,7 @@ fn place(mesh: TriMesh, x: f32, y: f32, z: f32, yaw: f32) -> TriMesh {
 }
 
 /// Rejection sampling of non-overlapping discs in a rectangle; `None` when it does not fit.
-fn find_spot(
+pub(crate) fn find_spot(
     r: &mut impl Rng,
     half: (f32, f32),
     center: (f32, f32),
@@ -214,25 +234,51 @@ const ROOM: f32 = 2.5;
 /// surfaces of the scene: the floor's underside and the walls' outsides are not.
 pub const ROOM_INTERIOR: Point3<f32> = Point3::new(0.0, 0.0, 1.0);
 
-pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
-    let mut r = ChaCha8Rng::seed_from_u64(seed);
-    let mut objects = Vec::new();
-    let add = |objects: &mut Vec<SceneObject>, category, mesh, app| {
-        let instance_id = objects.len() as u16 + 1;
-        objects.push(SceneObject {
-            instance_id,
-            category,
-            mesh,
-            appearance: app,
-        });
-    };
+/// The table of a scene and where it stands.
+#[derive(Debug, Clone, Copy)]
+pub struct TablePose {
+    pub instance_id: u16,
+    /// Width, depth and height of the table top.
+    pub size: Vector3<f32>,
+    pub x: f32,
+    pub y: f32,
+    pub yaw: f32,
+}
+
+impl TablePose {
+    /// Table-top coordinates (x along the width, y along the depth) to world x, y.
+    pub fn to_world(&self, x: f32, y: f32) -> (f32, f32) {
+        let (c, s) = (self.yaw.cos(), self.yaw.sin());
+        (self.x + c * x - s * y, self.y + s * x + c * y)
+    }
+}
+
+/// Appends an object with the next instance id.
+pub(crate) fn add_object(
+    objects: &mut Vec<SceneObject>,
+    category: Category,
+    mesh: TriMesh,
+    appearance: Appearance,
+) -> u16 {
+    let instance_id = objects.len() as u16 + 1;
+    objects.push(SceneObject {
+        instance_id,
+        category,
+        mesh,
+        appearance,
+    });
+    instance_id
+}
+
+/// The floor, the two walls and the table near the room's centre, rotated a little.
+pub(crate) fn room_and_table(r: &mut impl Rng, objects: &mut Vec<SceneObject>) -> TablePose {
     let floor_app = Appearance {
         color_a: [150, 140, 130],
         color_b: [120, 110, 100],
         texture: Texture::Checker { period_m: 0.3 },
     };
-    add(
-        &mut objects,
+    add_object(
+        objects,
         Category::Floor,
         cuboid(
             Point3::new(-ROOM, -ROOM, -0.02),
@@ -245,8 +291,8 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
         color_b: [200, 195, 185],
         texture: Texture::Noise { period_m: 0.5 },
     };
-    add(
-        &mut objects,
+    add_object(
+        objects,
         Category::Wall,
         cuboid(
             Point3::new(ROOM, -ROOM, 0.0),
@@ -254,8 +300,8 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
         ),
         wall_app,
     );
-    add(
-        &mut objects,
+    add_object(
+        objects,
         Category::Wall,
         cuboid(
             Point3::new(-ROOM, ROOM, 0.0),
@@ -263,22 +309,42 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
         ),
         wall_app,
     );
-
-    // The table, near the room centre, rotated a little.
-    let (table, size) = shapes::table(&mut r);
+    let (table, size) = shapes::table(r);
     let (tx, ty) = (r.random_range(-0.3..0.3), r.random_range(-0.3..0.3));
     let table_yaw = r.random_range(-0.3..0.3f32);
-    let app = appearance(&mut r);
-    add(
-        &mut objects,
+    let app = appearance(r);
+    let instance_id = add_object(
+        objects,
         Category::Table,
         place(table.mesh, tx, ty, 0.0, table_yaw),
         app,
     );
-    let to_world = |x: f32, y: f32| {
-        let (c, s) = (table_yaw.cos(), table_yaw.sin());
-        (tx + c * x - s * y, ty + s * x + c * y)
+    TablePose {
+        instance_id,
+        size,
+        x: tx,
+        y: ty,
+        yaw: table_yaw,
+    }
+}
+
+pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
+    match config.kind {
+        SceneKind::Indoor => indoor_scene(config, seed),
+        SceneKind::Pickup => crate::tasks::pickup_scene(config, seed),
+        SceneKind::Place => crate::tasks::place_scene(config, seed),
+    }
+}
+
+fn indoor_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
+    let mut r = ChaCha8Rng::seed_from_u64(seed);
+    let mut objects = Vec::new();
+    let add = |objects: &mut Vec<SceneObject>, category, mesh, app| {
+        add_object(objects, category, mesh, app);
     };
+    let table = room_and_table(&mut r, &mut objects);
+    let (size, tx, ty, table_yaw) = (table.size, table.x, table.y, table.yaw);
+    let to_world = |x: f32, y: f32| table.to_world(x, y);
 
     // Chairs along the long sides, some pushed under the table.
     let n_chairs = r.random_range(config.chairs_min.min(config.chairs_max)..=config.chairs_max);
@@ -422,6 +488,8 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
         objects,
         cameras,
         focus,
+        target: None,
+        table: Some(table),
     })
 }
 

@@ -384,3 +384,35 @@ fn user_meshes_are_placed_or_refused() {
         assert!(e.contains("unit.obj") && e.contains("does not fit"), "{e}");
     }
 }
+
+/// Task scenes keep their promises: a pickup target 5-95% visible in its one view, a place
+/// table with at least 30% of its free top hidden, and the same scene from the same seed.
+#[test]
+fn task_scenes_hide_what_their_benchmarks_need() {
+    use deocc_synth::dataset::{pickup_v1, place_v1, render_full_scene};
+    use deocc_synth::tasks::hidden_free_fraction;
+    let pickup = pickup_v1();
+    for &seed in &pickup.seeds[..3] {
+        let r = render_full_scene(&pickup.config, seed).unwrap();
+        let target = r.scene.target.expect("a target");
+        let v = r.views[0]
+            .visibility
+            .iter()
+            .find(|v| v.instance_id == target)
+            .expect("the target is in view");
+        let visible = 1.0 - v.occlusion();
+        assert!((0.05..=0.95).contains(&visible), "seed {seed}: {visible}");
+        assert_eq!(r.views.len(), 1);
+    }
+    let place = place_v1();
+    for &seed in &place.seeds[..2] {
+        let s = deocc_synth::scene::generate_scene(&place.config, seed).unwrap();
+        assert!(hidden_free_fraction(&s) >= 0.3, "seed {seed}");
+        let again = deocc_synth::scene::generate_scene(&place.config, seed).unwrap();
+        assert_eq!(s.objects.len(), again.objects.len());
+        assert_eq!(
+            s.cameras[0].world_from_camera,
+            again.cameras[0].world_from_camera
+        );
+    }
+}

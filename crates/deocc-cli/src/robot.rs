@@ -1,0 +1,272 @@
+//! `deocc grasp` and `deocc place`: the robot tasks on a scene folder's completed cloud.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use deocc_geometry::camera::Camera;
+use deocc_geometry::PointCloud;
+use deocc_pipeline::instances::ensure_instances;
+use deocc_pipeline::output::Staging;
+use deocc_pipeline::registration::register_unposed;
+use deocc_pipeline::segment::ConvexitySegmenter;
+use deocc_pipeline::{read_scene, PipelineOptions};
+use deocc_robot::picture::{draw_grasp, place_map_image};
+use deocc_robot::place::{PlaceOptions, UnseenSpace};
+use deocc_robot::{AntipodalPlanner, GraspOptions, GraspPlanner, GridPlacer, PlacePlanner};
+
+use crate::completers::CompleterArgs;
+
+#[derive(Args)]
+pub struct SceneArgs {
+    /// Scene folder (as for `deocc run`).
+    scene: PathBuf,
+    /// Output folder for the JSON answer and its picture; without it the JSON goes to stdout.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    #[command(flatten)]
+    completers: CompleterArgs,
+    /// Plan on the observed points only (no completion, no plane fill).
+    #[arg(long)]
+    observed: bool,
+}
+
+/// The scene's completed cloud (or observed with `--observed`) and its first camera.
+fn completed(a: &SceneArgs) -> Result<(PointCloud, Camera)> {
+    let mut scene = read_scene(&a.scene)?;
+    let registration = register_unposed(&mut scene)?;
+    ensure_instances(&mut scene, &ConvexitySegmenter::default())?;
+    let chain = if a.observed {
+        deocc_completion::CompleterChain::default()
+    } else {
+        crate::completers::chain(&a.completers)?
+    };
+    let out = deocc_pipeline::run(&scene, &chain, &PipelineOptions::default(), &registration)?;
+    let camera = scene.frames[0].camera;
+    Ok((
+        if a.observed {
+            out.observed
+        } else {
+            out.completed
+        },
+        camera,
+    ))
+}
+
+/// Writes `json` and `picture` into `out` atomically (or the JSON to stdout).
+fn answer(
+    out: Option<&Path>,
+    input: &Path,
+    name: &str,
+    json: &impl serde::Serialize,
+    picture: &image::RgbImage,
+) -> Result<()> {
+    let text = serde_json::to_string_pretty(json)?;
+    let Some(out) = out else {
+        println!("{text}");
+        return Ok(());
+    };
+    let staging = Staging::begin(out, Some(input))?;
+    std::fs::write(staging.dir().join(format!("{name}.json")), text + "\n")
+        .with_context(|| format!("writing {name}.json"))?;
+    picture
+        .save(staging.dir().join(format!("{name}.png")))
+        .with_context(|| format!("writing {name}.png"))?;
+    let dir = staging.commit()?;
+    println!("wrote {}", dir.display());
+    Ok(())
+}
+
+/// Reads planner settings from a JSON file, or the defaults.
+pub fn grasp_options(path: Option<&Path>) -> Result<GraspOptions> {
+    let o: GraspOptions = match path {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?
+        }
+        None => GraspOptions::default(),
+    };
+    o.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(o)
+}
+
+#[derive(Args)]
+pub struct GraspArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Instance id of the object to grasp (as in the instance maps).
+    #[arg(long)]
+    target: u32,
+    /// Planner settings (JSON of the grasp options: gripper geometry, seeds, friction, top_k).
+    #[arg(long)]
+    options: Option<PathBuf>,
+}
+
+#[derive(serde::Serialize)]
+struct GraspAnswer<'a> {
+    target: u32,
+    target_points: usize,
+    planner: &'a str,
+    gripper: deocc_robot::GripperConfig,
+    grasps: Vec<deocc_robot::Grasp>,
+}
+
+pub fn grasp(a: GraspArgs) -> Result<()> {
+    let options = grasp_options(a.options.as_deref())?;
+    let (cloud, camera) = completed(&a.scene)?;
+    let ids = cloud.instance.clone().unwrap_or_default();
+    let target: Vec<_> = cloud
+        .positions
+        .iter()
+        .zip(&ids)
+        .filter(|(_, &i)| i == a.target)
+        .map(|(p, _)| *p)
+        .collect();
+    if target.is_empty() {
+        let mut present: Vec<u32> = ids.iter().copied().filter(|&i| i != 0).collect();
+        present.sort_unstable();
+        present.dedup();
+        bail!(
+            "--target {}: no such instance in {} (instances: {:?})",
+            a.target,
+            a.scene.scene.display(),
+            present
+        );
+    }
+    let planner = AntipodalPlanner {
+        options: options.clone(),
+    };
+    let grasps = planner
+        .plan(&cloud.positions, &target)
+        .map_err(|e| anyhow::anyhow!("--target {}: {e}", a.target))?;
+    let mut img = deocc_pipeline::render::splat(&cloud, &camera, 1, true);
+    let project = |p: &nalgebra::Point3<f32>| camera.project_world(p).map(|(px, _)| [px.x, px.y]);
+    for (k, g) in grasps.iter().enumerate().rev() {
+        let color = if k == 0 {
+            [40, 255, 80]
+        } else {
+            [255, 220, 40]
+        };
+        draw_grasp(&mut img, g, &options.gripper, &project, color);
+    }
+    if a.scene.out.is_some() {
+        eprintln!(
+            "{} grasps on instance {} ({} points); best score {:.3}",
+            grasps.len(),
+            a.target,
+            target.len(),
+            grasps.first().map(|g| g.score).unwrap_or(0.0)
+        );
+    }
+    answer(
+        a.scene.out.as_deref(),
+        &a.scene.scene,
+        "grasps",
+        &GraspAnswer {
+            target: a.target,
+            target_points: target.len(),
+            planner: planner.name(),
+            gripper: options.gripper,
+            grasps,
+        },
+        &img,
+    )
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum Unseen {
+    Free,
+    Occupied,
+    AsPoints,
+}
+
+#[derive(Args)]
+pub struct PlaceArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Object footprint, width and depth in metres.
+    #[arg(long, value_delimiter = ',', default_values_t = [0.08, 0.08])]
+    footprint: Vec<f32>,
+    /// Object height in metres.
+    #[arg(long, default_value_t = 0.12)]
+    height: f32,
+    /// What cells without any point are: free (optimistic), occupied (conservative) or neither
+    /// (as the points say). Default: as-points for completed clouds, free with --observed.
+    #[arg(long, value_enum)]
+    unseen: Option<Unseen>,
+    /// Gravity's opposite in the scene's world frame.
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0, 0.0, 1.0])]
+    up: Vec<f32>,
+}
+
+pub fn place(a: PlaceArgs) -> Result<()> {
+    if a.footprint.len() != 2 {
+        bail!(
+            "--footprint takes two sizes, W,D in metres (got {:?})",
+            a.footprint
+        );
+    }
+    if a.up.len() != 3 {
+        bail!("--up takes three numbers, X,Y,Z (got {:?})", a.up);
+    }
+    let options = PlaceOptions {
+        footprint: [a.footprint[0], a.footprint[1]],
+        height: a.height,
+        up: [a.up[0], a.up[1], a.up[2]],
+        ..PlaceOptions::default()
+    };
+    options
+        .validate()
+        .map_err(|e| anyhow::anyhow!("--footprint / --height / --up: {e}"))?;
+    let unseen = match (a.unseen, a.scene.observed) {
+        (Some(Unseen::Free), _) | (None, true) => UnseenSpace::Free,
+        (Some(Unseen::Occupied), _) => UnseenSpace::Occupied,
+        (Some(Unseen::AsPoints), _) | (None, false) => UnseenSpace::AsPoints,
+    };
+    let (cloud, camera) = completed(&a.scene)?;
+    let placer = GridPlacer {
+        options: options.clone(),
+        unseen,
+    };
+    let robot = nalgebra::Point3::from(camera.world_from_camera.translation.vector);
+    let (maps, best) = placer
+        .plan(&cloud.positions, &robot)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.scene.display()))?;
+    let Some(best) = best else {
+        bail!(
+            "no placeable spot for a {} x {} x {} m object on any of the {} support surfaces",
+            a.footprint[0],
+            a.footprint[1],
+            a.height,
+            maps.len()
+        );
+    };
+    let map = &maps[best.plane];
+    let cells = [
+        (options.footprint[0] / options.cell_m).round() as usize,
+        (options.footprint[1] / options.cell_m).round() as usize,
+    ];
+    let img = place_map_image(map, Some(&best), cells, 4);
+    #[derive(serde::Serialize)]
+    struct PlaceAnswer<'a> {
+        placement: &'a deocc_robot::place::Placement,
+        plane: deocc_robot::place::SupportPlane,
+        placeable_cells: usize,
+        planes: Vec<deocc_robot::place::SupportPlane>,
+        options: &'a PlaceOptions,
+    }
+    answer(
+        a.scene.out.as_deref(),
+        &a.scene.scene,
+        "placement",
+        &PlaceAnswer {
+            placement: &best,
+            plane: map.plane,
+            placeable_cells: map.placeable_cells(),
+            planes: maps.iter().map(|m| m.plane).collect(),
+            options: &options,
+        },
+        &img,
+    )
+}

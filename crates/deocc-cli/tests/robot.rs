@@ -1,0 +1,125 @@
+//! `deocc grasp` and `deocc place` on a pickup-v1 scene: answers with pictures, and clear errors.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn deocc() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_deocc"))
+}
+
+/// The first pickup-v1 scene, written to `dir`, and its target id.
+fn pickup_scene(dir: &Path) -> (PathBuf, u64) {
+    let o = deocc()
+        .args([
+            "synth",
+            "scenes",
+            "--preset",
+            "pickup-v1",
+            "--first",
+            "1",
+            "--out",
+        ])
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene = dir.join("scene_000000");
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(scene.join("scene.json")).unwrap()).unwrap();
+    (
+        scene,
+        info["target"]
+            .as_u64()
+            .expect("pickup scenes name a target"),
+    )
+}
+
+#[test]
+fn grasp_and_place_answer_with_json_and_pictures_and_refuse_bad_requests() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, target) = pickup_scene(&tmp.path().join("pickup"));
+    let out = tmp.path().join("grasps");
+    let o = deocc()
+        .arg("grasp")
+        .arg(&scene)
+        .args([
+            "--target",
+            &target.to_string(),
+            "--completer",
+            "rules",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let answer: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("grasps.json")).unwrap()).unwrap();
+    let grasps = answer["grasps"].as_array().unwrap();
+    assert!(!grasps.is_empty(), "no grasp on the completed target");
+    let scores: Vec<f64> = grasps
+        .iter()
+        .map(|g| g["score"].as_f64().unwrap())
+        .collect();
+    assert!(scores.windows(2).all(|w| w[0] >= w[1]), "{scores:?}");
+    assert!(grasps
+        .iter()
+        .all(|g| g["width"].as_f64().unwrap() <= 0.085 + 1e-6));
+    assert!(out.join("grasps.png").exists());
+
+    // A target that is not in the scene: the ids that are.
+    let o = deocc()
+        .arg("grasp")
+        .arg(&scene)
+        .args(["--target", "999", "--completer", "rules"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--target 999") && err.contains("instances"),
+        "{err}"
+    );
+
+    let out = tmp.path().join("place");
+    let o = deocc()
+        .arg("place")
+        .arg(&scene)
+        .args([
+            "--footprint",
+            "0.08,0.06",
+            "--height",
+            "0.1",
+            "--completer",
+            "rules",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let answer: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("placement.json")).unwrap())
+            .unwrap();
+    let z = answer["placement"]["position"][2].as_f64().unwrap();
+    assert!(
+        (0.6..0.85).contains(&z),
+        "placed at height {z}, not on the table"
+    );
+    assert!(answer["placeable_cells"].as_u64().unwrap() > 0);
+    assert!(out.join("placement.png").exists());
+
+    // A footprint larger than every surface.
+    let o = deocc()
+        .arg("place")
+        .arg(&scene)
+        .args(["--footprint", "3,3", "--completer", "rules"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("larger than every support surface") || err.contains("no placeable spot"),
+        "{err}"
+    );
+}

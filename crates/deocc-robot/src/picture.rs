@@ -1,0 +1,98 @@
+//! Pictures a person would rather look at than read: gripper outlines over a rendered cloud and
+//! the placement map from above.
+
+use image::{Rgb, RgbImage};
+use nalgebra::{Point3, Vector3};
+
+use crate::gripper::{Grasp, GripperConfig};
+use crate::place::{PlaceMap, Placement};
+
+/// Draws a line from `a` to `b` (pixels), clipped to the image.
+pub fn line(img: &mut RgbImage, a: [f32; 2], b: [f32; 2], color: [u8; 3]) {
+    let steps = ((b[0] - a[0]).abs().max((b[1] - a[1]).abs()).ceil() as usize).clamp(1, 4096);
+    for s in 0..=steps {
+        let t = s as f32 / steps as f32;
+        let (x, y) = (a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t);
+        if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
+            img.put_pixel(x as u32, y as u32, Rgb(color));
+        }
+    }
+}
+
+/// The gripper's outline (two fingers, the palm and a stem back along the approach), projected
+/// by `project` (world point to pixel).
+pub fn draw_grasp(
+    img: &mut RgbImage,
+    grasp: &Grasp,
+    gripper: &GripperConfig,
+    project: &dyn Fn(&Point3<f32>) -> Option<[f32; 2]>,
+    color: [u8; 3],
+) {
+    let r = grasp.rotation();
+    let o = grasp.origin();
+    let at = |x: f32, y: f32| o + r * Vector3::new(x, y, 0.0);
+    let h = grasp.width / 2.0;
+    let segments = [
+        (at(0.0, -h), at(0.0, h)),
+        (at(0.0, h), at(gripper.depth, h)),
+        (at(0.0, -h), at(gripper.depth, -h)),
+        (at(0.0, 0.0), at(-0.04, 0.0)),
+    ];
+    for (a, b) in segments {
+        if let (Some(pa), Some(pb)) = (project(&a), project(&b)) {
+            line(img, pa, pb, color);
+        }
+    }
+}
+
+/// The map from above, `scale` pixels a cell: placeable green, blocked red where occupied and
+/// dark red near it, supported grey, unsupported black, never seen dark blue; the chosen cell's
+/// footprint outlined in yellow. Image rows run from +y (top) to -y.
+pub fn place_map_image(
+    map: &PlaceMap,
+    chosen: Option<&Placement>,
+    footprint_cells: [usize; 2],
+    scale: u32,
+) -> RgbImage {
+    let mut img = RgbImage::new(map.nx as u32 * scale, map.ny as u32 * scale);
+    for i in 0..map.nx * map.ny {
+        let c = if map.occupied[i] {
+            [200, 40, 40]
+        } else if map.placeable[i] {
+            [60, 180, 75]
+        } else if map.blocked[i] {
+            [110, 40, 40]
+        } else if !map.seen[i] {
+            [25, 30, 70]
+        } else if map.support[i] {
+            [150, 150, 150]
+        } else {
+            [0, 0, 0]
+        };
+        let (x, y) = ((i % map.nx) as u32, (map.ny - 1 - i / map.nx) as u32);
+        for dy in 0..scale {
+            for dx in 0..scale {
+                img.put_pixel(x * scale + dx, y * scale + dy, Rgb(c));
+            }
+        }
+    }
+    if let Some(p) = chosen {
+        let (cx, cy) = (
+            (p.cell % map.nx) as f32,
+            (map.ny - 1 - p.cell / map.nx) as f32,
+        );
+        let s = scale as f32;
+        let (hw, hd) = (
+            footprint_cells[0] as f32 / 2.0,
+            footprint_cells[1] as f32 / 2.0,
+        );
+        let (x0, x1) = ((cx + 0.5 - hw) * s, (cx + 0.5 + hw) * s);
+        let (y0, y1) = ((cy + 0.5 - hd) * s, (cy + 0.5 + hd) * s);
+        let yellow = [250, 220, 40];
+        line(&mut img, [x0, y0], [x1, y0], yellow);
+        line(&mut img, [x1, y0], [x1, y1], yellow);
+        line(&mut img, [x1, y1], [x0, y1], yellow);
+        line(&mut img, [x0, y1], [x0, y0], yellow);
+    }
+    img
+}

@@ -1,0 +1,280 @@
+//! Scenes for the robot-task benchmarks, in the same room as bench-v1:
+//!
+//! - **pickup** ([`pickup_scene`]): a graspable target (bottle, can or mug, at most 7.2 cm
+//!   across) on the table
+//!   behind a large box, a few other things around, one robot-head view 1.2-1.5 m high and
+//!   1.0-1.5 m (horizontally) from the target. Attempts are redrawn until 5-95% of the target's
+//!   silhouette is visible (a target nobody sees cannot be asked for; one nobody hides tests
+//!   nothing).
+//! - **place** ([`place_scene`]): a cluttered table (6-10 things) seen once from 1.5-2.5 m;
+//!   redrawn until at least 30% of the table's free surface is hidden from the view.
+//!
+//! Attempt `k` of seed `s` draws from the generator seeded `s * 64 + k`, so a seed fixes the
+//! scene.
+
+use deocc_geometry::camera::{look_at, Camera, Intrinsics};
+use nalgebra::{Point3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::dataset::render_view;
+use crate::ground_truth::visible_in;
+use crate::mesh::box_on;
+use crate::render::{render_scene, SceneTriangles};
+use crate::scene::{
+    add_object, appearance, find_spot, place, room_and_table, Scene, SceneConfig, SceneObject,
+    TablePose,
+};
+use crate::shapes::{self, Category};
+use crate::SynthError;
+
+/// Targets of pickup scenes: things a parallel-jaw gripper can hold, drawn until they are at
+/// most [`MAX_TARGET_RADIUS_M`] in radius (the default gripper opens 8.5 cm).
+pub const PICKUP_TARGETS: [Category; 3] = [Category::Bottle, Category::Can, Category::Mug];
+pub const MAX_TARGET_RADIUS_M: f32 = 0.036;
+
+const ATTEMPTS: u64 = 64;
+
+fn camera(config: &SceneConfig, eye: Point3<f32>, at: Point3<f32>) -> Result<Camera, SynthError> {
+    Ok(Camera {
+        intrinsics: Intrinsics::from_fov(config.width, config.height, config.hfov_deg)?,
+        world_from_camera: look_at(&eye, &at, &Vector3::z())?,
+    })
+}
+
+/// Whether table-top point (x, y) (table frame) is at least `margin` inside the top.
+fn on_top(t: &TablePose, x: f32, y: f32, margin: f32) -> bool {
+    x.abs() <= t.size.x / 2.0 - margin && y.abs() <= t.size.y / 2.0 - margin
+}
+
+/// World x, y to table-top coordinates.
+fn to_table(t: &TablePose, x: f32, y: f32) -> (f32, f32) {
+    let (c, s) = (t.yaw.cos(), t.yaw.sin());
+    let (dx, dy) = (x - t.x, y - t.y);
+    (c * dx + s * dy, -s * dx + c * dy)
+}
+
+/// Things from the training pool on free spots of the table top.
+fn scatter(
+    r: &mut impl Rng,
+    objects: &mut Vec<SceneObject>,
+    table: &TablePose,
+    taken: &mut Vec<(f32, f32, f32)>,
+    count: usize,
+) {
+    let half = (table.size.x / 2.0 - 0.03, table.size.y / 2.0 - 0.03);
+    for _ in 0..count {
+        let c = Category::TABLETOP_TRAIN[r.random_range(0..Category::TABLETOP_TRAIN.len())];
+        let shape = shapes::tabletop(c, r);
+        let Some((x, y)) = find_spot(r, half, (0.0, 0.0), shape.footprint_radius, taken) else {
+            continue;
+        };
+        taken.push((x, y, shape.footprint_radius));
+        let (wx, wy) = table.to_world(x, y);
+        let yaw = r.random_range(0.0..std::f32::consts::TAU);
+        let app = appearance(r);
+        add_object(
+            objects,
+            c,
+            place(shape.mesh, wx, wy, table.size.z, yaw),
+            app,
+        );
+    }
+}
+
+/// A pickup scene (see the module docs); `Scene::target` names the target.
+pub fn pickup_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
+    for k in 0..ATTEMPTS {
+        let Some(scene) = pickup_attempt(config, seed, seed.wrapping_mul(64).wrapping_add(k))?
+        else {
+            continue;
+        };
+        let tris = SceneTriangles::new(&scene);
+        let view = render_view(&scene, &tris, config, 0);
+        let target = scene.target.unwrap_or(0);
+        let visible = view
+            .visibility
+            .iter()
+            .find(|v| v.instance_id == target)
+            .map(|v| 1.0 - v.occlusion());
+        if visible.is_some_and(|f| (0.05..=0.95).contains(&f))
+            && view
+                .visibility
+                .iter()
+                .any(|v| v.instance_id == target && !v.truncated)
+        {
+            return Ok(scene);
+        }
+    }
+    Err(SynthError::Config(format!(
+        "pickup seed {seed}: no attempt of {ATTEMPTS} hid 5-95% of the target"
+    )))
+}
+
+fn pickup_attempt(
+    config: &SceneConfig,
+    seed: u64,
+    stream: u64,
+) -> Result<Option<Scene>, SynthError> {
+    let mut r = ChaCha8Rng::seed_from_u64(stream);
+    let mut objects = Vec::new();
+    let table = room_and_table(&mut r, &mut objects);
+    // The target near the middle of the table, the robot on the room's open side.
+    let (lx, ly) = (r.random_range(-0.15..0.15), r.random_range(-0.1..0.1));
+    let (tx, ty) = table.to_world(lx, ly);
+    let top = table.size.z;
+    let category = PICKUP_TARGETS[r.random_range(0..PICKUP_TARGETS.len())];
+    let mut shape = shapes::tabletop(category, &mut r);
+    for _ in 0..50 {
+        if shape.footprint_radius <= MAX_TARGET_RADIUS_M {
+            break;
+        }
+        shape = shapes::tabletop(category, &mut r);
+    }
+    if shape.footprint_radius > MAX_TARGET_RADIUS_M {
+        return Ok(None);
+    }
+    let az = r.random_range(200f32..250.0).to_radians();
+    let to_robot = Vector3::new(az.cos(), az.sin(), 0.0);
+    let side = Vector3::new(-az.sin(), az.cos(), 0.0);
+    // The occluder: a large box between the robot and the target, facing the robot.
+    let (w, d) = (r.random_range(0.16..0.3f32), r.random_range(0.05..0.1f32));
+    let h = (shape.height * r.random_range(0.6..1.25f32)).clamp(0.08, 0.35);
+    let gap = r.random_range(0.02..0.08f32);
+    let lateral = r.random_range(-1.0..1.0f32) * (w / 2.0 + shape.footprint_radius);
+    let oc = Point3::new(tx, ty, top)
+        + to_robot * (shape.footprint_radius + d / 2.0 + gap)
+        + side * lateral;
+    let (ox, oy) = to_table(&table, oc.x, oc.y);
+    if !on_top(&table, ox, oy, w / 2.0 + 0.02) || !on_top(&table, lx, ly, 0.1) {
+        return Ok(None);
+    }
+    let yaw = r.random_range(0.0..std::f32::consts::TAU);
+    let app = appearance(&mut r);
+    let target = add_object(
+        &mut objects,
+        category,
+        place(shape.mesh, tx, ty, top, yaw),
+        app,
+    );
+    let app = appearance(&mut r);
+    add_object(
+        &mut objects,
+        Category::Box,
+        place(
+            box_on(Vector3::new(w, d, h), (0.0, 0.0), 0.0),
+            oc.x,
+            oc.y,
+            top,
+            az + std::f32::consts::FRAC_PI_2,
+        ),
+        app,
+    );
+    let mut taken = vec![(lx, ly, shape.footprint_radius), (ox, oy, w / 2.0 + 0.01)];
+    let extra = r.random_range(0..=2);
+    scatter(&mut r, &mut objects, &table, &mut taken, extra);
+    let dist = r.random_range(1.0..1.5f32);
+    let eye = Point3::new(tx, ty, 0.0) + to_robot * dist + Vector3::z() * r.random_range(1.2..1.5);
+    let at = Point3::new(tx, ty, top + shape.height / 2.0)
+        + Vector3::new(
+            r.random_range(-0.03..0.03),
+            r.random_range(-0.03..0.03),
+            0.0,
+        );
+    Ok(Some(Scene {
+        seed,
+        objects,
+        cameras: vec![camera(config, eye, at)?],
+        focus: Point3::new(table.x, table.y, top),
+        target: Some(target),
+        table: Some(table),
+    }))
+}
+
+/// A place scene (see the module docs).
+pub fn place_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
+    for k in 0..ATTEMPTS {
+        let scene = place_attempt(config, seed, seed.wrapping_mul(64).wrapping_add(k))?;
+        if hidden_free_fraction(&scene) >= 0.3 {
+            return Ok(scene);
+        }
+    }
+    Err(SynthError::Config(format!(
+        "place seed {seed}: no attempt of {ATTEMPTS} hid 30% of the free table top"
+    )))
+}
+
+fn place_attempt(config: &SceneConfig, seed: u64, stream: u64) -> Result<Scene, SynthError> {
+    let mut r = ChaCha8Rng::seed_from_u64(stream);
+    let mut objects = Vec::new();
+    let table = room_and_table(&mut r, &mut objects);
+    let mut taken = Vec::new();
+    let n = r.random_range(6..=10);
+    scatter(&mut r, &mut objects, &table, &mut taken, n);
+    let az = r.random_range(200f32..250.0).to_radians();
+    let dist = r.random_range(1.5..2.5f32);
+    let top = table.size.z;
+    let eye = Point3::new(table.x + dist * az.cos(), table.y + dist * az.sin(), 0.0)
+        + Vector3::z() * r.random_range(1.2..1.6);
+    let at = Point3::new(table.x, table.y, top);
+    Ok(Scene {
+        seed,
+        objects,
+        cameras: vec![camera(config, eye, at)?],
+        focus: at,
+        target: None,
+        table: Some(table),
+    })
+}
+
+/// Share of the table top's free surface (2 cm grid, not under a thing's footprint disc) that
+/// the scene's first camera does not see.
+pub fn hidden_free_fraction(scene: &Scene) -> f32 {
+    let Some(table) = scene.table else {
+        return 0.0;
+    };
+    let tris = SceneTriangles::new(scene);
+    let cam = scene.cameras[0];
+    let frame = render_scene(&cam, scene, &tris);
+    let discs: Vec<(f32, f32, f32)> = scene
+        .objects
+        .iter()
+        .filter(|o| !o.category.is_structure() && o.category != Category::Table)
+        .filter_map(|o| {
+            let (lo, hi) = o.mesh.bounds()?;
+            let c = nalgebra::center(&lo, &hi);
+            Some((c.x, c.y, (hi.x - lo.x).hypot(hi.y - lo.y) / 2.0))
+        })
+        .collect();
+    let (mut free, mut hidden) = (0usize, 0usize);
+    let step = 0.02;
+    let (nx, ny) = (
+        (table.size.x / step) as i32 / 2,
+        (table.size.y / step) as i32 / 2,
+    );
+    for i in -nx..=nx {
+        for j in -ny..=ny {
+            let (x, y) = (i as f32 * step, j as f32 * step);
+            if !on_top(&table, x, y, 0.01) {
+                continue;
+            }
+            let (wx, wy) = table.to_world(x, y);
+            if discs
+                .iter()
+                .any(|&(cx, cy, rad)| (wx - cx).hypot(wy - cy) <= rad)
+            {
+                continue;
+            }
+            free += 1;
+            let p = Point3::new(wx, wy, table.size.z);
+            if !visible_in(&p, table.instance_id, &cam, &frame) {
+                hidden += 1;
+            }
+        }
+    }
+    if free == 0 {
+        0.0
+    } else {
+        hidden as f32 / free as f32
+    }
+}
