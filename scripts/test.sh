@@ -15,7 +15,8 @@ deny() { # crate, forbidden dependency, why
 for crate in deocc-geometry deocc-io deocc-completion deocc-synth; do
   deny "$crate" candle-core "the geometry, I/O and completion-seam layers must stay free of the ML stack"
 done
-for crate in deocc-completion deocc-pipeline deocc-model; do
+deny deocc-robot candle-core "robot tasks work on plain clouds, without the ML stack"
+for crate in deocc-completion deocc-pipeline deocc-model deocc-robot; do
   deny "$crate" deocc-synth "the product path must not depend on the benchmark renderer"
 done
 deny deocc-pipeline candle-core "the pipeline talks to completers through deocc-completion, not candle"
