@@ -11,7 +11,9 @@ mod eval;
 mod progress;
 mod report;
 mod robot;
+mod robot_eval;
 mod run;
+mod sheet;
 mod synth;
 mod train;
 

@@ -1,0 +1,86 @@
+//! `deocc eval grasp` and `deocc eval place`: the robot-task benchmarks.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+
+#[derive(Args)]
+pub struct GraspArgs {
+    #[arg(long, default_value = "bench/grasp.json")]
+    json: PathBuf,
+    /// GL-DoT model folder; default: the built-in model.
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// Number of pickup-v1 scenes (the first N of its 120).
+    #[arg(long, default_value_t = 120)]
+    scenes: usize,
+    #[arg(long, default_value_t = 4)]
+    steps: usize,
+    /// Grasp planner settings (JSON of GraspOptions: gripper geometry, seeds, friction, ...).
+    #[arg(long)]
+    options: Option<PathBuf>,
+}
+
+pub fn grasp(a: GraspArgs) -> Result<()> {
+    let chains = robot_chains(a.weights.as_ref())?;
+    let opts = deocc_pipeline::PipelineOptions {
+        steps: a.steps,
+        ..Default::default()
+    };
+    opts.validate()?;
+    let options = crate::robot::grasp_options(a.options.as_deref())?;
+    let n = a.scenes.min(deocc_synth::dataset::pickup_v1().seeds.len());
+    let pb = crate::progress::bar(n as u64, "scenes");
+    let report =
+        deocc_eval::grasp::grasp_benchmark(&chains, &opts, &options, n, &mut || pb.inc(1))?;
+    pb.finish_and_clear();
+    crate::report::write_report(&a.json, &report)?;
+    Ok(())
+}
+
+/// The completer rows of the robot-task benchmarks: the rules completer and the shipped chain.
+fn robot_chains(
+    weights: Option<&PathBuf>,
+) -> Result<Vec<(String, deocc_completion::CompleterChain)>> {
+    use crate::completers::{chain, CompleterArgs};
+    let make = |names: &[&str]| {
+        chain(&CompleterArgs {
+            completer: names.iter().map(|s| s.to_string()).collect(),
+            weights: weights.cloned(),
+        })
+    };
+    Ok(vec![
+        ("rules".to_string(), make(&["rules"])?),
+        ("gldot,rules".to_string(), make(&["gldot", "rules"])?),
+    ])
+}
+
+#[derive(Args)]
+pub struct PlaceArgs {
+    #[arg(long, default_value = "bench/place.json")]
+    json: PathBuf,
+    /// GL-DoT model folder; default: the built-in model.
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// Number of place-v1 scenes (the first N of its 100).
+    #[arg(long, default_value_t = 100)]
+    scenes: usize,
+    #[arg(long, default_value_t = 4)]
+    steps: usize,
+}
+
+pub fn place(a: PlaceArgs) -> Result<()> {
+    let chains = robot_chains(a.weights.as_ref())?;
+    let opts = deocc_pipeline::PipelineOptions {
+        steps: a.steps,
+        ..Default::default()
+    };
+    opts.validate()?;
+    let n = a.scenes.min(deocc_synth::dataset::place_v1().seeds.len());
+    let pb = crate::progress::bar(n as u64, "scenes");
+    let report = deocc_eval::place::place_benchmark(&chains, &opts, n, &mut || pb.inc(1))?;
+    pb.finish_and_clear();
+    crate::report::write_report(&a.json, &report)?;
+    Ok(())
+}
