@@ -13,6 +13,7 @@ mod report;
 mod robot;
 mod robot_eval;
 mod run;
+mod scene_options;
 mod sheet;
 mod synth;
 mod train;

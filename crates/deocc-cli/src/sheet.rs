@@ -6,7 +6,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 use deocc_synth::dataset::render_full_scene;
 
-use crate::synth::SceneOptions;
+use crate::scene_options::SceneOptions;
 
 #[derive(Args)]
 pub struct SheetArgs {

@@ -8,11 +8,11 @@ use deocc_synth::dataset::{
     preset, render_full_scene, scene_dir, set_stats, write_scene, Preset, SceneInfo,
 };
 use deocc_synth::pairs::{save_pairs, split_scene_pairs, PairConfig, PairSet, Split};
-use deocc_synth::scene::{CameraPath, SceneConfig, UserMesh};
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::progress::bar;
+use crate::scene_options::SceneOptions;
 
 #[derive(Subcommand)]
 pub enum SynthCommand {
@@ -22,82 +22,6 @@ pub enum SynthCommand {
     Pairs(PairsArgs),
     /// Write a contact sheet PNG (RGB | depth | instances | amodal) of one scene.
     Sheet(crate::sheet::SheetArgs),
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum PathArg {
-    RobotHead,
-    Arc,
-    Single,
-}
-
-#[derive(Args)]
-pub struct SceneOptions {
-    /// Views per scene.
-    #[arg(long, default_value_t = 10)]
-    views: usize,
-    #[arg(long, default_value_t = 640)]
-    width: u32,
-    #[arg(long, default_value_t = 480)]
-    height: u32,
-    #[arg(long, value_enum, default_value_t = PathArg::RobotHead)]
-    camera_path: PathArg,
-    /// Include the held-out shapes (vase, L-bracket), as test scenes do.
-    #[arg(long)]
-    held_out_shapes: bool,
-    /// Add depth noise and drop depth at grazing angles.
-    #[arg(long)]
-    sensor_noise: bool,
-    /// Ground-truth surface samples per square metre.
-    #[arg(long, default_value_t = 10_000.0)]
-    gt_density: f32,
-    /// A user mesh to put on the table, as PATH=SIZE_M (OBJ, PLY or STL), repeatable: scaled so
-    /// that its largest side is SIZE_M, which must fit on the table top (tables are 0.6-1.0 m
-    /// deep, so up to about 0.35 m; a mesh that does not fit is an error).
-    #[arg(long = "mesh", value_name = "PATH=SIZE_M")]
-    meshes: Vec<String>,
-}
-
-impl SceneOptions {
-    pub fn config(&self) -> Result<SceneConfig> {
-        let user_meshes = self
-            .meshes
-            .iter()
-            .map(|m| {
-                let (path, size) = m
-                    .rsplit_once('=')
-                    .context("--mesh takes PATH=SIZE_M, e.g. bunny.ply=0.15")?;
-                let size_m: f32 = size
-                    .parse()
-                    .with_context(|| format!("--mesh {m}: '{size}' is not a size in metres"))?;
-                if !(size_m > 0.0 && size_m < 2.0) {
-                    bail!("--mesh {m}: size must be in (0, 2) metres");
-                }
-                Ok(UserMesh {
-                    path: PathBuf::from(path),
-                    size_m,
-                })
-            })
-            .collect::<Result<_>>()?;
-        if self.views == 0 || self.width < 16 || self.height < 16 {
-            bail!("need at least one view and an image of at least 16x16 pixels");
-        }
-        Ok(SceneConfig {
-            width: self.width,
-            height: self.height,
-            views: self.views,
-            camera_path: match self.camera_path {
-                PathArg::RobotHead => CameraPath::RobotHead,
-                PathArg::Arc => CameraPath::Arc,
-                PathArg::Single => CameraPath::Single,
-            },
-            held_out_shapes: self.held_out_shapes,
-            sensor_noise: self.sensor_noise,
-            gt_points_per_m2: self.gt_density,
-            user_meshes,
-            ..SceneConfig::default()
-        })
-    }
 }
 
 #[derive(Args)]

@@ -29,11 +29,12 @@ use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::generate::generate_scene;
 use crate::ground_truth::{sample_surfaces, seen_flags, GroundTruth};
 use crate::render::{
     add_sensor_noise, rasterize_coverage, render_scene, shade, Frame, PixelBox, SceneTriangles,
 };
-use crate::scene::{generate_scene, CameraPath, Scene, SceneConfig, SceneKind};
+use crate::scene::{CameraPath, Scene, SceneConfig, SceneKind};
 use crate::{Result, SynthError};
 
 /// One object's visibility in one view.

@@ -10,6 +10,7 @@
 //! World frame: metres, z up, the floor at z = 0.
 
 pub mod dataset;
+pub mod generate;
 pub mod ground_truth;
 pub mod mesh;
 pub mod pairs;

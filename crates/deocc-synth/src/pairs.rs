@@ -25,8 +25,9 @@ use deocc_geometry::camera::{Camera, Intrinsics};
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
+use crate::generate::generate_scene;
 use crate::render::{rasterize, shade, Frame, SceneTriangles};
-use crate::scene::{generate_scene, CameraPath, Scene, SceneConfig};
+use crate::scene::{CameraPath, Scene, SceneConfig};
 pub use deocc_io::pairs::{load_pairs, save_pairs, PairSet};
 
 use crate::Result;

@@ -328,15 +328,8 @@ pub(crate) fn room_and_table(r: &mut impl Rng, objects: &mut Vec<SceneObject>) -
     }
 }
 
-pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
-    match config.kind {
-        SceneKind::Indoor => indoor_scene(config, seed),
-        SceneKind::Pickup => crate::tasks::pickup_scene(config, seed),
-        SceneKind::Place => crate::tasks::place_scene(config, seed),
-    }
-}
-
-fn indoor_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
+/// An indoor scene (bench-v1's kind); [`crate::generate::generate_scene`] picks the kind.
+pub fn indoor_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     let mut objects = Vec::new();
     let add = |objects: &mut Vec<SceneObject>, category, mesh, app| {

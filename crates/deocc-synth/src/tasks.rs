@@ -17,10 +17,9 @@ use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::dataset::render_view;
 use crate::ground_truth::visible_in;
 use crate::mesh::box_on;
-use crate::render::{render_scene, SceneTriangles};
+use crate::render::{rasterize_coverage, render_scene, SceneTriangles};
 use crate::scene::{
     add_object, appearance, find_spot, place, room_and_table, Scene, SceneConfig, SceneObject,
     TablePose,
@@ -89,26 +88,33 @@ pub fn pickup_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError
         else {
             continue;
         };
-        let tris = SceneTriangles::new(&scene);
-        let view = render_view(&scene, &tris, config, 0);
-        let target = scene.target.unwrap_or(0);
-        let visible = view
-            .visibility
-            .iter()
-            .find(|v| v.instance_id == target)
-            .map(|v| 1.0 - v.occlusion());
-        if visible.is_some_and(|f| (0.05..=0.95).contains(&f))
-            && view
-                .visibility
-                .iter()
-                .any(|v| v.instance_id == target && !v.truncated)
-        {
+        if target_visible_fraction(&scene).is_some_and(|f| (0.05..=0.95).contains(&f)) {
             return Ok(scene);
         }
     }
     Err(SynthError::Config(format!(
         "pickup seed {seed}: no attempt of {ATTEMPTS} hid 5-95% of the target"
     )))
+}
+
+/// The target's visible share of its silhouette in the first view; `None` when it is out of
+/// view or touches the image border.
+fn target_visible_fraction(scene: &Scene) -> Option<f32> {
+    let target = scene.target?;
+    let k = scene.objects.iter().position(|o| o.instance_id == target)?;
+    let tris = SceneTriangles::new(scene);
+    let cam = scene.cameras[0];
+    let frame = render_scene(&cam, scene, &tris);
+    let visible = frame.instance.iter().filter(|&&i| i == target).count();
+    let (w, h) = (frame.width, frame.height);
+    let mut coverage = vec![false; w as usize * h as usize];
+    let [u0, v0, u1, v1] =
+        rasterize_coverage(&cam, &tris, tris.object_ranges[k].clone(), &mut coverage)?;
+    if u0 == 0 || v0 == 0 || u1 == w - 1 || v1 == h - 1 {
+        return None;
+    }
+    let amodal = coverage.iter().filter(|&&c| c).count();
+    (amodal > 0).then(|| visible as f32 / amodal as f32)
 }
 
 fn pickup_attempt(

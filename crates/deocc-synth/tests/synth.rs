@@ -2,9 +2,10 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use deocc_synth::dataset::{preset, render_full_scene, write_scene};
+use deocc_synth::generate::generate_scene;
 use deocc_synth::pairs::{load_pairs, save_pairs, scene_pairs, PairConfig};
 use deocc_synth::render::{albedo, light, render_object, render_scene, shade, SceneTriangles};
-use deocc_synth::scene::{generate_scene, SceneConfig};
+use deocc_synth::scene::SceneConfig;
 use nalgebra::Point3;
 use sha2::{Digest, Sha256};
 
@@ -325,7 +326,8 @@ fn structure_ground_truth_lies_only_on_faces_towards_the_room() {
 /// mesh too large for the table is an error, never silently left out.
 #[test]
 fn user_meshes_are_placed_or_refused() {
-    use deocc_synth::scene::{generate_scene, SceneConfig, UserMesh};
+    use deocc_synth::generate::generate_scene;
+    use deocc_synth::scene::{SceneConfig, UserMesh};
     use deocc_synth::shapes::Category;
     let dir = tempfile::tempdir().unwrap();
     let cube = |name: &str, s: f32| {
@@ -406,9 +408,9 @@ fn task_scenes_hide_what_their_benchmarks_need() {
     }
     let place = place_v1();
     for &seed in &place.seeds[..2] {
-        let s = deocc_synth::scene::generate_scene(&place.config, seed).unwrap();
+        let s = deocc_synth::generate::generate_scene(&place.config, seed).unwrap();
         assert!(hidden_free_fraction(&s) >= 0.3, "seed {seed}");
-        let again = deocc_synth::scene::generate_scene(&place.config, seed).unwrap();
+        let again = deocc_synth::generate::generate_scene(&place.config, seed).unwrap();
         assert_eq!(s.objects.len(), again.objects.len());
         assert_eq!(
             s.cameras[0].world_from_camera,

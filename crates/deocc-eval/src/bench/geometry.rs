@@ -53,8 +53,10 @@ type CloudPair = (Vec<Point3<f32>>, Vec<Point3<f32>>);
 
 pub fn bench_clouds(n: usize) -> Result<CloudPair, EvalError> {
     use deocc_synth::render::SceneTriangles;
-    let scene =
-        deocc_synth::scene::generate_scene(&deocc_synth::scene::SceneConfig::default(), 9_000_000)?;
+    let scene = deocc_synth::generate::generate_scene(
+        &deocc_synth::scene::SceneConfig::default(),
+        9_000_000,
+    )?;
     let tris = SceneTriangles::new(&scene);
     let area: f64 = tris
         .corners

@@ -69,7 +69,7 @@ pub fn synth_bench(scenes: usize) -> Result<SynthReport, EvalError> {
     let mut stages = SynthStages::default();
     for (i, &seed) in seeds.iter().enumerate() {
         let t = Instant::now();
-        let scene = deocc_synth::scene::generate_scene(&p.config, seed)?;
+        let scene = deocc_synth::generate::generate_scene(&p.config, seed)?;
         let tris = SceneTriangles::new(&scene);
         stages.generate += t.elapsed().as_secs_f64();
         let t = Instant::now();
@@ -106,7 +106,7 @@ pub fn synth_bench(scenes: usize) -> Result<SynthReport, EvalError> {
     }
     let t0 = Instant::now();
     for &seed in seeds {
-        let scene = deocc_synth::scene::generate_scene(&p.config, seed)?;
+        let scene = deocc_synth::generate::generate_scene(&p.config, seed)?;
         let tris = SceneTriangles::new(&scene);
         let _: Vec<_> = (0..scene.cameras.len())
             .into_par_iter()

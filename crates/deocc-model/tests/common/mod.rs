@@ -81,8 +81,9 @@ pub fn assert_same_gradients(
 
 /// A handful of 16x16 pairs from one synthetic scene.
 pub fn tiny_pairs() -> PairData {
+    use deocc_synth::generate::generate_scene;
     use deocc_synth::pairs::{scene_pairs, PairConfig};
-    use deocc_synth::scene::{generate_scene, SceneConfig};
+    use deocc_synth::scene::SceneConfig;
     let scene = generate_scene(
         &SceneConfig {
             views: 3,
