@@ -53,3 +53,32 @@ pub fn chain(a: &CompleterArgs) -> Result<CompleterChain> {
     }
     Ok(CompleterChain::new(links))
 }
+
+/// Named chains for a benchmark's rows: each entry a chain spelled as `--completer` would
+/// (`"gldot,rules"`), all loading GL-DoT from `weights` (or the built-in model).
+pub fn named_chains(
+    weights: Option<&Path>,
+    names: &[&str],
+) -> Result<Vec<(String, CompleterChain)>> {
+    names
+        .iter()
+        .map(|&name| {
+            let c = chain(&CompleterArgs {
+                completer: name.split(',').map(str::to_string).collect(),
+                weights: weights.map(Path::to_path_buf),
+            })?;
+            Ok((name.to_string(), c))
+        })
+        .collect()
+}
+
+/// Default pipeline options with `steps` denoising steps, validated.
+pub fn options_with_steps(steps: usize) -> Result<deocc_pipeline::PipelineOptions> {
+    let opts = deocc_pipeline::PipelineOptions {
+        steps,
+        ..Default::default()
+    };
+    opts.validate()
+        .map_err(|e| anyhow::anyhow!("{e} (from --steps)"))?;
+    Ok(opts)
+}

@@ -48,23 +48,9 @@ pub struct ObjectsArgs {
 }
 
 fn objects(a: ObjectsArgs) -> Result<()> {
-    use crate::completers::{chain, CompleterArgs};
-    let make = |names: &[&str]| {
-        chain(&CompleterArgs {
-            completer: names.iter().map(|s| s.to_string()).collect(),
-            weights: a.weights.clone(),
-        })
-    };
-    let chains = vec![
-        ("rules".to_string(), make(&["rules"])?),
-        ("gldot".to_string(), make(&["gldot"])?),
-        ("gldot,rules".to_string(), make(&["gldot", "rules"])?),
-    ];
-    let opts = deocc_pipeline::PipelineOptions {
-        steps: a.steps,
-        ..Default::default()
-    };
-    opts.validate()?;
+    let chains =
+        crate::completers::named_chains(a.weights.as_deref(), &["rules", "gldot", "gldot,rules"])?;
+    let opts = crate::completers::options_with_steps(a.steps)?;
     let n = a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
     let report = deocc_eval::objects::object_benchmark(&chains, &opts, n, &mut || pb.inc(1))?;
@@ -114,11 +100,7 @@ pub struct ReconstructionArgs {
 
 fn reconstruction(a: ReconstructionArgs) -> Result<()> {
     let chain = crate::completers::chain(&a.completers)?;
-    let opts = deocc_pipeline::PipelineOptions {
-        steps: a.steps,
-        ..Default::default()
-    };
-    opts.validate()?;
+    let opts = crate::completers::options_with_steps(a.steps)?;
     let n = a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
     let report =

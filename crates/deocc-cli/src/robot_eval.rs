@@ -24,11 +24,7 @@ pub struct GraspArgs {
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let chains = robot_chains(a.weights.as_ref())?;
-    let opts = deocc_pipeline::PipelineOptions {
-        steps: a.steps,
-        ..Default::default()
-    };
-    opts.validate()?;
+    let opts = crate::completers::options_with_steps(a.steps)?;
     let options = crate::robot::grasp_options(a.options.as_deref())?;
     let n = a.scenes.min(deocc_synth::dataset::pickup_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
@@ -43,17 +39,7 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
 fn robot_chains(
     weights: Option<&PathBuf>,
 ) -> Result<Vec<(String, deocc_completion::CompleterChain)>> {
-    use crate::completers::{chain, CompleterArgs};
-    let make = |names: &[&str]| {
-        chain(&CompleterArgs {
-            completer: names.iter().map(|s| s.to_string()).collect(),
-            weights: weights.cloned(),
-        })
-    };
-    Ok(vec![
-        ("rules".to_string(), make(&["rules"])?),
-        ("gldot,rules".to_string(), make(&["gldot", "rules"])?),
-    ])
+    crate::completers::named_chains(weights.map(PathBuf::as_path), &["rules", "gldot,rules"])
 }
 
 #[derive(Args)]
@@ -72,11 +58,7 @@ pub struct PlaceArgs {
 
 pub fn place(a: PlaceArgs) -> Result<()> {
     let chains = robot_chains(a.weights.as_ref())?;
-    let opts = deocc_pipeline::PipelineOptions {
-        steps: a.steps,
-        ..Default::default()
-    };
-    opts.validate()?;
+    let opts = crate::completers::options_with_steps(a.steps)?;
     let n = a.scenes.min(deocc_synth::dataset::place_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
     let report = deocc_eval::place::place_benchmark(&chains, &opts, n, &mut || pb.inc(1))?;
