@@ -54,6 +54,27 @@ pub fn chain(a: &CompleterArgs) -> Result<CompleterChain> {
     Ok(CompleterChain::new(links))
 }
 
+/// Which completers and which weights `a` names, for a server's Health answer and logs: e.g.
+/// `gldot,rules (built-in gldot-small, fnv64 1f3a...)`.
+pub fn describe_model(a: &CompleterArgs) -> String {
+    let names = a.completer.join(",");
+    if !a.completer.iter().any(|c| c.trim() == "gldot") {
+        return names;
+    }
+    match &a.weights {
+        Some(dir) => format!("{names} (weights {})", dir.display()),
+        None => {
+            // FNV-1a: a stable fingerprint of the built-in weights, not a security hash.
+            let h = BUILTIN_WEIGHTS
+                .iter()
+                .fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+                    (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+                });
+            format!("{names} (built-in gldot-small, fnv64 {h:016x})")
+        }
+    }
+}
+
 /// Named chains for a benchmark's rows: each entry a chain spelled as `--completer` would
 /// (`"gldot,rules"`), all loading GL-DoT from `weights` (or the built-in model).
 pub fn named_chains(
@@ -72,13 +93,31 @@ pub fn named_chains(
         .collect()
 }
 
-/// Default pipeline options with `steps` denoising steps, validated.
-pub fn options_with_steps(steps: usize) -> Result<deocc_pipeline::PipelineOptions> {
-    let opts = deocc_pipeline::PipelineOptions {
-        steps,
-        ..Default::default()
-    };
-    opts.validate()
-        .map_err(|e| anyhow::anyhow!("{e} (from --steps)"))?;
-    Ok(opts)
+/// The pipeline options of a benchmark command: the defaults, or `--options FILE`, with
+/// `--steps` on top.
+#[derive(Args, Clone, Debug)]
+pub struct PipelineArgs {
+    /// Denoising steps of a generative completer (default: 4, or the options file's).
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Pipeline options as JSON (the fields of `deocc run --options`); missing fields take
+    /// their defaults.
+    #[arg(long)]
+    pub options: Option<PathBuf>,
+}
+
+impl PipelineArgs {
+    /// The options, validated; errors name the file or `--steps`.
+    pub fn options(&self) -> Result<deocc_pipeline::PipelineOptions> {
+        let mut opts = match &self.options {
+            Some(path) => deocc_pipeline::PipelineOptions::from_json_file(path)?,
+            None => deocc_pipeline::PipelineOptions::default(),
+        };
+        if let Some(steps) = self.steps {
+            opts.steps = steps;
+            opts.validate()
+                .map_err(|e| anyhow::anyhow!("{e} (from --steps)"))?;
+        }
+        Ok(opts)
+    }
 }

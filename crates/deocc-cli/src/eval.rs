@@ -43,14 +43,14 @@ pub struct ObjectsArgs {
     /// Number of bench-v1 scenes (the first N of its 50).
     #[arg(long, default_value_t = 50)]
     scenes: usize,
-    #[arg(long, default_value_t = 4)]
-    steps: usize,
+    #[command(flatten)]
+    pipeline: crate::completers::PipelineArgs,
 }
 
 fn objects(a: ObjectsArgs) -> Result<()> {
     let chains =
         crate::completers::named_chains(a.weights.as_deref(), &["rules", "gldot", "gldot,rules"])?;
-    let opts = crate::completers::options_with_steps(a.steps)?;
+    let opts = a.pipeline.options()?;
     let n = a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
     let report = deocc_eval::objects::object_benchmark(&chains, &opts, n, &mut || pb.inc(1))?;
@@ -94,13 +94,13 @@ pub struct ReconstructionArgs {
     /// Number of bench-v1 scenes (the first N of its 50).
     #[arg(long, default_value_t = 50)]
     scenes: usize,
-    #[arg(long, default_value_t = 4)]
-    steps: usize,
+    #[command(flatten)]
+    pipeline: crate::completers::PipelineArgs,
 }
 
 fn reconstruction(a: ReconstructionArgs) -> Result<()> {
     let chain = crate::completers::chain(&a.completers)?;
-    let opts = crate::completers::options_with_steps(a.steps)?;
+    let opts = a.pipeline.options()?;
     let n = a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
     let report =

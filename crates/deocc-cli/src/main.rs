@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod batch;
 mod bench;
 mod completers;
 mod eval;
@@ -14,6 +15,7 @@ mod robot;
 mod robot_eval;
 mod run;
 mod scene_options;
+mod serve;
 mod sheet;
 mod synth;
 mod train;
@@ -64,6 +66,12 @@ struct Cli {
 enum Command {
     /// Complete the occluded objects of a scene and fuse them into its point cloud.
     Run(run::RunArgs),
+    /// Run the pipeline over a manifest of scene folders, one shard per job (Kubernetes Indexed
+    /// Jobs, Slurm arrays); complete outputs are skipped, a JSONL summary is appended.
+    Batch(batch::BatchArgs),
+    /// Serve the pipeline, grasping and placing over gRPC (proto/deocc/v1/deocc.proto in
+    /// crates/deocc-service).
+    Serve(serve::ServeArgs),
     /// Make synthetic scenes, training pairs and contact sheets.
     #[command(subcommand)]
     Synth(synth::SynthCommand),
@@ -98,6 +106,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Run(a) => run::run(a),
+        Command::Batch(a) => batch::batch(a),
+        Command::Serve(a) => serve::serve(a),
         Command::Synth(c) => synth::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Train(a) => train::run(a),

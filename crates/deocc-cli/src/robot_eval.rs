@@ -15,8 +15,8 @@ pub struct GraspArgs {
     /// Number of pickup-v1 scenes (the first N of its 120).
     #[arg(long, default_value_t = 120)]
     scenes: usize,
-    #[arg(long, default_value_t = 4)]
-    steps: usize,
+    #[command(flatten)]
+    pipeline: crate::completers::PipelineArgs,
     /// Grasp planner settings (JSON of GraspOptions: gripper geometry, seeds, friction, ...).
     #[arg(long)]
     options: Option<PathBuf>,
@@ -24,7 +24,7 @@ pub struct GraspArgs {
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let chains = robot_chains(a.weights.as_ref())?;
-    let opts = crate::completers::options_with_steps(a.steps)?;
+    let opts = a.pipeline.options()?;
     let options = crate::robot::grasp_options(a.options.as_deref())?;
     let n = a.scenes.min(deocc_synth::dataset::pickup_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
@@ -52,13 +52,13 @@ pub struct PlaceArgs {
     /// Number of place-v1 scenes (the first N of its 100).
     #[arg(long, default_value_t = 100)]
     scenes: usize,
-    #[arg(long, default_value_t = 4)]
-    steps: usize,
+    #[command(flatten)]
+    pipeline: crate::completers::PipelineArgs,
 }
 
 pub fn place(a: PlaceArgs) -> Result<()> {
     let chains = robot_chains(a.weights.as_ref())?;
-    let opts = crate::completers::options_with_steps(a.steps)?;
+    let opts = a.pipeline.options()?;
     let n = a.scenes.min(deocc_synth::dataset::place_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
     let report = deocc_eval::place::place_benchmark(&chains, &opts, n, &mut || pb.inc(1))?;

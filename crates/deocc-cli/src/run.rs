@@ -1,7 +1,7 @@
 //! `deocc run`: the pipeline on a scene folder (or a built-in example), its output folder written
 //! atomically by the pipeline's output stage.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::Args;
@@ -41,31 +41,28 @@ pub struct RunArgs {
     segment: bool,
 }
 
-pub fn run(a: RunArgs) -> Result<()> {
-    let input = match (&a.input, a.example) {
-        (Some(_), true) => bail!("give an INPUT folder or --example, not both"),
-        (None, false) => {
-            bail!("give an INPUT scene folder, or --example to run on a generated benchmark scene")
-        }
-        (Some(p), false) => Some(p.clone()),
-        (None, true) => None,
-    };
-    let mut opts = match &a.options {
-        Some(path) => PipelineOptions::from_json_file(path)?,
-        None => PipelineOptions::default(),
-    };
-    if let Some(s) = a.steps {
-        opts.steps = s;
-    }
-    if let Some(r) = a.rho {
-        opts.rho = r;
-    }
-    opts.validate()
-        .map_err(|e| anyhow::anyhow!("{e} (from --steps / --rho / --options)"))?;
-    let chain = crate::completers::chain(&a.completers)?;
-    let staging = Staging::begin(&a.out, input.as_deref())?;
+/// What [`run_scene`] made: the pipeline's result, the evaluation against the scene's ground
+/// truth (if it has one), and the output folder.
+pub struct SceneRun {
+    pub result: deocc_pipeline::PipelineOutput,
+    pub evaluation: Option<deocc_eval::reconstruction::RunEvaluation>,
+    pub out: PathBuf,
+}
+
+/// Runs the pipeline on the scene folder `input` (or the built-in example when `None`) and
+/// writes its output folder `out` atomically: read, register unposed frames, segment frames
+/// without instance maps (all frames with `segment`), complete, evaluate against
+/// `ground_truth.ply` if the scene has one, write, swap in.
+pub fn run_scene(
+    input: Option<&Path>,
+    out: &Path,
+    chain: &deocc_completion::CompleterChain,
+    opts: &PipelineOptions,
+    segment: bool,
+) -> Result<SceneRun> {
+    let staging = Staging::begin(out, input)?;
     let (input_dir, reported_input) = match input {
-        Some(p) => (p.clone(), p),
+        Some(p) => (p.to_path_buf(), p.to_path_buf()),
         None => {
             let dir = staging.dir().join("input");
             crate::synth::write_example_scene(&dir)?;
@@ -74,7 +71,7 @@ pub fn run(a: RunArgs) -> Result<()> {
     };
     let mut scene = read_scene(&input_dir)?;
     let registration = register_unposed(&mut scene)?;
-    if a.segment {
+    if segment {
         for f in &mut scene.frames {
             f.instances = None;
         }
@@ -83,7 +80,7 @@ pub fn run(a: RunArgs) -> Result<()> {
     if segmented > 0 {
         eprintln!("segmented the frames with the default RGB-D segmenter: {segmented} instances across views");
     }
-    let result = deocc_pipeline::run(&scene, &chain, &opts, &registration)?;
+    let result = deocc_pipeline::run(&scene, chain, opts, &registration)?;
     let gt_path = input_dir.join("ground_truth.ply");
     let evaluation = if gt_path.exists() {
         let (gt, seen) = deocc_eval::reconstruction::read_ground_truth(&gt_path)?;
@@ -106,6 +103,40 @@ pub fn run(a: RunArgs) -> Result<()> {
         evaluation.as_ref(),
     )?;
     let out = staging.commit()?;
+    Ok(SceneRun {
+        result,
+        evaluation,
+        out,
+    })
+}
+
+pub fn run(a: RunArgs) -> Result<()> {
+    let input = match (&a.input, a.example) {
+        (Some(_), true) => bail!("give an INPUT folder or --example, not both"),
+        (None, false) => {
+            bail!("give an INPUT scene folder, or --example to run on a generated benchmark scene")
+        }
+        (Some(p), false) => Some(p.clone()),
+        (None, true) => None,
+    };
+    let mut opts = match &a.options {
+        Some(path) => PipelineOptions::from_json_file(path)?,
+        None => PipelineOptions::default(),
+    };
+    if let Some(s) = a.steps {
+        opts.steps = s;
+    }
+    if let Some(r) = a.rho {
+        opts.rho = r;
+    }
+    opts.validate()
+        .map_err(|e| anyhow::anyhow!("{e} (from --steps / --rho / --options)"))?;
+    let chain = crate::completers::chain(&a.completers)?;
+    let SceneRun {
+        result,
+        evaluation,
+        out,
+    } = run_scene(input.as_deref(), &a.out, &chain, &opts, a.segment)?;
     let r = &result.report;
     println!(
         "{} frames, {} instances completed by {} ({} with generated points, {:.2} objects/s), {} observed + {} generated points, {:.1} s",

@@ -11,6 +11,9 @@ pub enum PipelineError {
     /// An option out of range, naming it.
     #[error("option {field}: {msg}")]
     Option { field: &'static str, msg: String },
+    /// The caller's [`crate::Observer`] stopped the run (a cancelled or timed-out request).
+    #[error("cancelled before stage {stage}")]
+    Cancelled { stage: &'static str },
     #[error(transparent)]
     Io(#[from] deocc_io::IoError),
     #[error(transparent)]

@@ -67,6 +67,43 @@ pub struct PipelineOutput {
 /// Registration facts a caller hands to [`run`] for its report (empty for posed input).
 pub type Registration = Vec<registration::FrameRegistration>;
 
+/// What a caller sees of a run as it goes, and how it stops one: [`run_observed`] calls
+/// [`Observer::stage`] as each stage begins; `false` stops the run at that point with
+/// [`PipelineError::Cancelled`] (everything it held is freed on the way out).
+pub trait Observer: Sync {
+    /// `stage` is about to begin; `fraction` of the run's usual time is done.
+    fn stage(&self, stage: &'static str, fraction: f32) -> bool;
+}
+
+/// An observer that sees nothing and never stops a run.
+pub struct Unobserved;
+
+impl Observer for Unobserved {
+    fn stage(&self, _: &'static str, _: f32) -> bool {
+        true
+    }
+}
+
+/// The stages in order, with the share of a run's time before each (bench-v1 means).
+pub const STAGES: [(&str, f32); 7] = [
+    ("reconstruct", 0.0),
+    ("occlusion", 0.47),
+    ("select_views", 0.5),
+    ("complete", 0.53),
+    ("fuse", 0.69),
+    ("planes", 0.77),
+    ("report", 0.99),
+];
+
+fn enter(observer: &dyn Observer, stage: usize) -> Result<(), PipelineError> {
+    let (name, fraction) = STAGES[stage];
+    if observer.stage(name, fraction) {
+        Ok(())
+    } else {
+        Err(PipelineError::Cancelled { stage: name })
+    }
+}
+
 /// The whole pipeline on a loaded scene whose frames all have instance maps
 /// ([`instances::ensure_instances`] gives them one), completing with `chain`.
 pub fn run(
@@ -74,6 +111,39 @@ pub fn run(
     chain: &CompleterChain,
     opts: &PipelineOptions,
     registration: &Registration,
+) -> Result<PipelineOutput, PipelineError> {
+    run_observed(scene, chain, opts, registration, &Unobserved)
+}
+
+/// A scene made in memory (a service request, numpy arrays), end to end: unposed frames are
+/// registered, frames without an instance map (every frame with `segment`) are segmented with
+/// `segmenter`, then [`run_observed`].
+pub fn run_in_memory(
+    mut scene: SceneInput,
+    chain: &CompleterChain,
+    opts: &PipelineOptions,
+    segmenter: &dyn segment::Segmenter,
+    segment: bool,
+    observer: &dyn Observer,
+) -> Result<PipelineOutput, PipelineError> {
+    opts.validate()?;
+    let registration = registration::register_unposed(&mut scene)?;
+    if segment {
+        for f in &mut scene.frames {
+            f.instances = None;
+        }
+    }
+    instances::ensure_instances(&mut scene, segmenter)?;
+    run_observed(&scene, chain, opts, &registration, observer)
+}
+
+/// [`run`], telling `observer` of each stage; it may stop the run between stages.
+pub fn run_observed(
+    scene: &SceneInput,
+    chain: &CompleterChain,
+    opts: &PipelineOptions,
+    registration: &Registration,
+    observer: &dyn Observer,
 ) -> Result<PipelineOutput, PipelineError> {
     opts.validate()?;
     let t_all = Instant::now();
@@ -87,9 +157,11 @@ pub fn run(
     }
 
     check_scene_extent(scene, opts.max_scene_radius_m)?;
+    enter(observer, 0)?;
     let t = Instant::now();
     let observed = reconstruct::reconstruct(scene, opts.observed_voxel_m)?;
     timings.reconstruct_s = t.elapsed().as_secs_f64();
+    enter(observer, 1)?;
 
     let t = Instant::now();
     let occlusion: Vec<Vec<MaskOcclusion>> = scene
@@ -108,6 +180,7 @@ pub fn run(
         opts.complete_unoccluded,
     );
     timings.occlusion_s = t.elapsed().as_secs_f64();
+    enter(observer, 2)?;
 
     let t = Instant::now();
     let stats: Vec<_> = scene.frames.iter().map(stats::view_stats).collect();
@@ -116,11 +189,13 @@ pub fn run(
         .map(|(&id, c)| (id, views::select_views(scene, &stats, id, c, opts)))
         .collect();
     timings.select_views_s = t.elapsed().as_secs_f64();
+    enter(observer, 3)?;
 
     let t = Instant::now();
     let (completed_crops, declined) =
         complete::complete_instances(scene, &stats, &selected, chain, opts)?;
     timings.complete_s = t.elapsed().as_secs_f64();
+    enter(observer, 4)?;
 
     let t = Instant::now();
     let mut generated = PointCloud::default();
@@ -172,6 +247,7 @@ pub fn run(
     }
     let mut completed = fuse_generated(&observed, &generated, opts.fusion_voxel_m)?;
     timings.fuse_s = t.elapsed().as_secs_f64();
+    enter(observer, 5)?;
 
     let t = Instant::now();
     if opts.complete_planes {
@@ -179,6 +255,7 @@ pub fn run(
         completed = fuse_generated(&completed, &fill, opts.fusion_voxel_m)?;
     }
     timings.planes_s = t.elapsed().as_secs_f64();
+    enter(observer, 6)?;
     timings.total_s = t_all.elapsed().as_secs_f64();
 
     let report = make_report(

@@ -207,7 +207,7 @@ fn main() -> std::process::ExitCode {
         let mut rng = ChaCha8Rng::seed_from_u64(a.seed ^ t.name.len() as u64);
         let path = dir.join(t.file);
         let start = Instant::now();
-        let (mut runs, mut largest) = (0u64, 0usize);
+        let (mut runs, mut largest, mut found) = (0u64, 0usize, false);
         while start.elapsed() < per_target {
             let seed = &t.seeds[rng.random_range(0..t.seeds.len())];
             let input = mutate(seed, &mut rng);
@@ -232,12 +232,15 @@ fn main() -> std::process::ExitCode {
                 let _ = std::fs::write(&keep, &input);
                 eprintln!("{}: {why} on input {} (run {runs})", t.name, keep.display());
                 failed = true;
+                found = true;
                 break;
             }
         }
         println!(
-            "{}: {runs} inputs, no panic, largest allocation {:.1} MB",
+            "{}: {runs} inputs in {:.0} s, {}, largest allocation {:.1} MB",
             t.name,
+            start.elapsed().as_secs_f64(),
+            if found { "FAILED" } else { "no panic" },
             largest as f64 / (1 << 20) as f64
         );
     }

@@ -1,0 +1,400 @@
+//! A `CompleteRequest` into a scene, checked as strictly as a scene folder is read: every error
+//! names the field (`frames[2].depth.data`), and nothing is allocated beyond the request's own
+//! size before the sizes agree.
+
+use std::path::PathBuf;
+
+use deocc_geometry::camera::{Camera, Intrinsics};
+use deocc_geometry::DepthMap;
+use deocc_io::images::InstanceMap;
+use deocc_pipeline::{Frame, PipelineOptions, SceneInput};
+use image::RgbImage;
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+use crate::proto::{CameraInfo, CompleteRequest, Image};
+use crate::FieldError;
+
+/// What a request may hold.
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    pub max_frames: usize,
+    /// Pixels of one frame.
+    pub max_pixels: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            max_frames: 32,
+            max_pixels: 4096 * 4096,
+        }
+    }
+}
+
+fn bad(field: impl Into<String>, msg: impl Into<String>) -> FieldError {
+    FieldError::new(field, msg)
+}
+
+/// The rows of `img` (`bpp` bytes a pixel), checked against the frame's size.
+fn rows<'a>(
+    img: &'a Image,
+    at: &str,
+    size: (u32, u32),
+    encodings: &[&str],
+    bpp: usize,
+) -> Result<impl Iterator<Item = &'a [u8]>, FieldError> {
+    if !encodings.contains(&img.encoding.as_str()) {
+        return Err(bad(
+            format!("{at}.encoding"),
+            format!("{:?} is not one of {encodings:?}", img.encoding),
+        ));
+    }
+    if (img.width, img.height) != size {
+        return Err(bad(
+            at,
+            format!(
+                "is {}x{}, but camera_info says {}x{}",
+                img.width, img.height, size.0, size.1
+            ),
+        ));
+    }
+    if img.is_bigendian && bpp > 1 {
+        return Err(bad(
+            format!("{at}.is_bigendian"),
+            "big-endian images are not supported",
+        ));
+    }
+    let (w, h) = (img.width as usize, img.height as usize);
+    let step = img.step as usize;
+    if step < w * bpp {
+        return Err(bad(
+            format!("{at}.step"),
+            format!("{step} is less than width {w} x {bpp} bytes"),
+        ));
+    }
+    if img.data.len() != step * h {
+        return Err(bad(
+            format!("{at}.data"),
+            format!(
+                "{} bytes, expected step {step} x height {h} = {}",
+                img.data.len(),
+                step * h
+            ),
+        ));
+    }
+    Ok(img
+        .data
+        .chunks_exact(step.max(1))
+        .map(move |r| &r[..w * bpp]))
+}
+
+fn intrinsics(info: &CameraInfo, at: &str, limits: &Limits) -> Result<Intrinsics, FieldError> {
+    if info.k.len() != 9 {
+        return Err(bad(
+            format!("{at}.k"),
+            format!("has {} values, expected 9 (row-major 3x3)", info.k.len()),
+        ));
+    }
+    if info.width as usize * info.height as usize > limits.max_pixels {
+        return Err(bad(
+            at,
+            format!(
+                "{}x{} is more than {} pixels",
+                info.width, info.height, limits.max_pixels
+            ),
+        ));
+    }
+    let k = &info.k;
+    if k.iter().any(|v| !v.is_finite()) {
+        return Err(bad(format!("{at}.k"), format!("{k:?} is not finite")));
+    }
+    let i = Intrinsics::new(
+        k[0] as f32,
+        k[4] as f32,
+        k[2] as f32,
+        k[5] as f32,
+        info.width,
+        info.height,
+    )
+    .and_then(|i| i.check_plausible().map(|_| i))
+    .map_err(|e| bad(format!("{at}.k"), e.to_string()))?;
+    Ok(i)
+}
+
+fn pose(m: &[f64], at: &str) -> Result<Isometry3<f32>, FieldError> {
+    if m.len() != 16 {
+        return Err(bad(
+            at,
+            format!("has {} values, expected 16 (row-major 4x4)", m.len()),
+        ));
+    }
+    if m.iter().any(|v| !v.is_finite() || v.abs() > 1e6) {
+        return Err(bad(at, "values must be finite and under 1e6"));
+    }
+    if m[12..16] != [0.0, 0.0, 0.0, 1.0] {
+        return Err(bad(at, "the last row must be 0 0 0 1"));
+    }
+    let r = Matrix3::new(m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]);
+    let err = (r.transpose() * r - Matrix3::identity()).abs().max();
+    if err > 1e-3 || r.determinant() < 0.0 {
+        return Err(bad(at, "the rotation part is not a rotation"));
+    }
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r.cast()));
+    Ok(Isometry3::from_parts(
+        Translation3::from(Vector3::new(m[3], m[7], m[11]).cast::<f32>()),
+        q,
+    ))
+}
+
+fn frame(
+    req: &crate::proto::Frame,
+    k: usize,
+    limits: &Limits,
+) -> Result<(Frame, bool), FieldError> {
+    let at = format!("frames[{k}]");
+    let info = req
+        .camera_info
+        .as_ref()
+        .ok_or_else(|| bad(format!("{at}.camera_info"), "missing"))?;
+    let intr = intrinsics(info, &format!("{at}.camera_info"), limits)?;
+    let size = (info.width, info.height);
+    let rgb_msg = req
+        .rgb
+        .as_ref()
+        .ok_or_else(|| bad(format!("{at}.rgb"), "missing"))?;
+    let bgr = rgb_msg.encoding == "bgr8";
+    let mut rgb = Vec::with_capacity(size.0 as usize * size.1 as usize * 3);
+    for row in rows(rgb_msg, &format!("{at}.rgb"), size, &["rgb8", "bgr8"], 3)? {
+        if bgr {
+            for px in row.chunks_exact(3) {
+                rgb.extend_from_slice(&[px[2], px[1], px[0]]);
+            }
+        } else {
+            rgb.extend_from_slice(row);
+        }
+    }
+    let rgb = RgbImage::from_raw(size.0, size.1, rgb)
+        .ok_or_else(|| bad(format!("{at}.rgb"), "size mismatch"))?;
+    let depth_msg = req
+        .depth
+        .as_ref()
+        .ok_or_else(|| bad(format!("{at}.depth"), "missing"))?;
+    let mut depth = Vec::with_capacity(size.0 as usize * size.1 as usize);
+    let mm = depth_msg.encoding == "16UC1";
+    let bpp = if mm { 2 } else { 4 };
+    for row in rows(
+        depth_msg,
+        &format!("{at}.depth"),
+        size,
+        &["16UC1", "32FC1"],
+        bpp,
+    )? {
+        if mm {
+            depth.extend(
+                row.chunks_exact(2)
+                    .map(|b| f32::from(u16::from_le_bytes([b[0], b[1]])) / 1000.0),
+            );
+        } else {
+            // REP-118: NaN and +-inf mean no measurement, as 0 does.
+            depth.extend(row.chunks_exact(4).map(|b| {
+                let d = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                if d.is_finite() && d > 0.0 {
+                    d
+                } else {
+                    0.0
+                }
+            }));
+        }
+    }
+    if depth.iter().all(|&d| d == 0.0) {
+        return Err(bad(
+            format!("{at}.depth"),
+            "has no valid measurement (every pixel 0 or NaN)",
+        ));
+    }
+    let depth = DepthMap::new(size.0, size.1, depth)
+        .map_err(|e| bad(format!("{at}.depth"), e.to_string()))?;
+    let instances = match &req.instances {
+        Some(img) => {
+            let mut ids = Vec::with_capacity(size.0 as usize * size.1 as usize);
+            for row in rows(
+                img,
+                &format!("{at}.instances"),
+                size,
+                &["16UC1", "mono16"],
+                2,
+            )? {
+                ids.extend(
+                    row.chunks_exact(2)
+                        .map(|b| u16::from_le_bytes([b[0], b[1]])),
+                );
+            }
+            Some(InstanceMap {
+                width: size.0,
+                height: size.1,
+                ids,
+            })
+        }
+        None => None,
+    };
+    let posed = !req.world_from_camera.is_empty();
+    let world_from_camera = if posed {
+        pose(&req.world_from_camera, &format!("{at}.world_from_camera"))?
+    } else {
+        Isometry3::identity()
+    };
+    let name = if req.name.is_empty() {
+        format!("frame{k}")
+    } else {
+        deocc_io::scene::check_frame_name(&req.name).map_err(|e| bad(format!("{at}.name"), e))?;
+        req.name.clone()
+    };
+    Ok((
+        Frame {
+            name,
+            camera: Camera {
+                intrinsics: intr,
+                world_from_camera,
+            },
+            rgb,
+            depth,
+            instances,
+        },
+        posed,
+    ))
+}
+
+/// The scene and options of a request, or the first problem, naming its field.
+pub fn scene_from_request(
+    req: &CompleteRequest,
+    limits: &Limits,
+) -> Result<(SceneInput, PipelineOptions), FieldError> {
+    if req.frames.is_empty() {
+        return Err(bad("frames", "no frame"));
+    }
+    if req.frames.len() > limits.max_frames {
+        return Err(bad(
+            "frames",
+            format!(
+                "{} frames, more than this server takes ({})",
+                req.frames.len(),
+                limits.max_frames
+            ),
+        ));
+    }
+    let opts = if req.options_json.trim().is_empty() {
+        PipelineOptions::default()
+    } else {
+        let o: PipelineOptions = serde_json::from_str(&req.options_json)
+            .map_err(|e| bad("options_json", e.to_string()))?;
+        o.validate()
+            .map_err(|e| bad("options_json", e.to_string()))?;
+        o
+    };
+    let mut frames = Vec::with_capacity(req.frames.len());
+    let mut posed = Vec::with_capacity(req.frames.len());
+    let mut names = std::collections::BTreeSet::new();
+    for (k, f) in req.frames.iter().enumerate() {
+        let (frame, p) = frame(f, k, limits)?;
+        if !names.insert(frame.name.clone()) {
+            return Err(bad(
+                format!("frames[{k}].name"),
+                format!("{:?} is used by an earlier frame", frame.name),
+            ));
+        }
+        frames.push(frame);
+        posed.push(p);
+    }
+    if posed.iter().any(|&p| p) && !posed.iter().all(|&p| p) {
+        let k = posed.iter().position(|&p| !p).unwrap_or(0);
+        return Err(bad(
+            format!("frames[{k}].world_from_camera"),
+            "missing: give every frame a pose, or none",
+        ));
+    }
+    let structure_ids = req
+        .structure_ids
+        .iter()
+        .map(|&id| u16::try_from(id).map_err(|_| bad("structure_ids", format!("{id} > 65535"))))
+        .collect::<Result<_, _>>()?;
+    Ok((
+        SceneInput {
+            dir: PathBuf::from("request"),
+            frames,
+            structure_ids,
+            posed: posed[0],
+        },
+        opts,
+    ))
+}
+
+/// A request for `scene` (depth as 16UC1 millimetres, colour as rgb8, poses if the scene has
+/// them, instance maps if the frames have them).
+pub fn request_from_scene(scene: &SceneInput, options_json: &str) -> CompleteRequest {
+    let frames = scene
+        .frames
+        .iter()
+        .map(|f| {
+            let (w, h) = (f.rgb.width(), f.rgb.height());
+            let image = |encoding: &str, bpp: u32, data: Vec<u8>| Image {
+                height: h,
+                width: w,
+                encoding: encoding.into(),
+                is_bigendian: false,
+                step: w * bpp,
+                data,
+            };
+            let depth: Vec<u8> = f
+                .depth
+                .data()
+                .iter()
+                .flat_map(|&d| ((d * 1000.0).round().clamp(0.0, 65535.0) as u16).to_le_bytes())
+                .collect();
+            let i = &f.camera.intrinsics;
+            let m = f.camera.world_from_camera.to_homogeneous();
+            Frame2 {
+                name: f.name.clone(),
+                rgb: Some(image("rgb8", 3, f.rgb.as_raw().clone())),
+                depth: Some(image("16UC1", 2, depth)),
+                camera_info: Some(CameraInfo {
+                    height: h,
+                    width: w,
+                    k: vec![
+                        i.fx() as f64,
+                        0.0,
+                        i.cx() as f64,
+                        0.0,
+                        i.fy() as f64,
+                        i.cy() as f64,
+                        0.0,
+                        0.0,
+                        1.0,
+                    ],
+                }),
+                world_from_camera: if scene.posed {
+                    (0..4)
+                        .flat_map(|r| (0..4).map(move |c| (r, c)))
+                        .map(|(r, c)| m[(r, c)] as f64)
+                        .collect()
+                } else {
+                    Vec::new()
+                },
+                instances: f.instances.as_ref().map(|m| {
+                    image(
+                        "16UC1",
+                        2,
+                        m.ids.iter().flat_map(|id| id.to_le_bytes()).collect(),
+                    )
+                }),
+            }
+        })
+        .collect();
+    CompleteRequest {
+        frames,
+        options_json: options_json.into(),
+        segment: false,
+        structure_ids: scene.structure_ids.iter().map(|&i| u32::from(i)).collect(),
+    }
+}
+
+use crate::proto::Frame as Frame2;
