@@ -20,6 +20,30 @@ pub enum BenchCommand {
     Model(ModelArgs),
     /// Peak resident memory of `deocc run` against the number of views.
     Memory(MemoryArgs),
+    /// The gRPC service on loopback: overhead against the in-process pipeline (alternating
+    /// rounds), serialisation share, a 1M-point cloud's encode + decode, and a load test
+    /// (concurrent clients, every status counted, p50 / p99 latency, peak RSS).
+    Service(ServiceArgs),
+}
+
+#[derive(Args)]
+pub struct ServiceArgs {
+    #[arg(long, default_value = "bench/service.json")]
+    json: PathBuf,
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=256))]
+    clients: u32,
+    /// Requests per client.
+    #[arg(long, default_value_t = 25, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    requests: u32,
+    /// Alternating rounds of the overhead comparison.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
+    rounds: u32,
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+    workers: u32,
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(0..=10_000))]
+    queue: u32,
+    #[command(flatten)]
+    completers: crate::completers::CompleterArgs,
 }
 
 #[derive(Args)]
@@ -100,6 +124,28 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             let exe = std::env::current_exe()?;
             let report =
                 bench::memory::memory_bench(&exe, &a.views, a.width, a.height, &a.completer)?;
+            crate::report::write_report(&a.json, &report)?;
+        }
+        BenchCommand::Service(a) => {
+            let chain = crate::completers::chain(&a.completers)?;
+            let total = u64::from(a.clients) * u64::from(a.requests);
+            let pb = std::sync::Arc::new(crate::progress::bar(total, "requests"));
+            let tick = {
+                let pb = pb.clone();
+                std::sync::Arc::new(move || pb.inc(1))
+            };
+            let report = bench::service::service_bench(
+                chain,
+                &bench::service::ServiceBenchOptions {
+                    clients: a.clients as usize,
+                    requests: a.requests as usize,
+                    rounds: a.rounds as usize,
+                    workers: a.workers as usize,
+                    queue: a.queue as usize,
+                },
+                tick,
+            )?;
+            pb.finish_and_clear();
             crate::report::write_report(&a.json, &report)?;
         }
         BenchCommand::Model(a) => {

@@ -175,42 +175,41 @@ pub fn decode(msg: &PointCloud2, what: &str) -> Result<PointCloud, FieldError> {
     let rgb = find("rgb", &[FLOAT32, UINT32])?;
     let instance = find("instance", &[UINT32, UINT16])?;
     let provenance = find("provenance", &[UINT8])?;
-    let d = &msg.data;
-    let f32_at = |o: usize| f32::from_le_bytes([d[o], d[o + 1], d[o + 2], d[o + 3]]);
-    let u32_at = |o: usize| u32::from_le_bytes([d[o], d[o + 1], d[o + 2], d[o + 3]]);
+    // One pass over the points, each a `step`-byte chunk.
+    let rd4 = |p: &[u8], o: usize| [p[o], p[o + 1], p[o + 2], p[o + 3]];
     let mut positions = Vec::with_capacity(n);
-    for i in 0..n {
-        let b = i * step;
-        let p = Point3::new(f32_at(b + xyz[0]), f32_at(b + xyz[1]), f32_at(b + xyz[2]));
-        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+    let mut colors = rgb.map(|_| Vec::with_capacity(n));
+    let mut ids = instance.map(|_| Vec::with_capacity(n));
+    let mut generated = provenance.map(|_| Vec::with_capacity(n));
+    for (i, p) in msg.data.chunks_exact(step.max(1)).take(n).enumerate() {
+        let q = Point3::new(
+            f32::from_le_bytes(rd4(p, xyz[0])),
+            f32::from_le_bytes(rd4(p, xyz[1])),
+            f32::from_le_bytes(rd4(p, xyz[2])),
+        );
+        if !(q.x.is_finite() && q.y.is_finite() && q.z.is_finite()) {
             return Err(bad(
                 &format!("{what}.data"),
-                format!("point {i} is not finite ({}, {}, {})", p.x, p.y, p.z),
+                format!("point {i} is not finite ({}, {}, {})", q.x, q.y, q.z),
             ));
         }
-        positions.push(p);
+        positions.push(q);
+        if let (Some(c), Some((o, _))) = (colors.as_mut(), rgb) {
+            let v = u32::from_le_bytes(rd4(p, o));
+            c.push([(v >> 16) as u8, (v >> 8) as u8, v as u8]);
+        }
+        if let (Some(v), Some((o, t))) = (ids.as_mut(), instance) {
+            v.push(if t == UINT16 {
+                u32::from(u16::from_le_bytes([p[o], p[o + 1]]))
+            } else {
+                u32::from_le_bytes(rd4(p, o))
+            });
+        }
+        if let (Some(g), Some((o, _))) = (generated.as_mut(), provenance) {
+            g.push(p[o]);
+        }
     }
-    let colors = rgb.map(|(o, _)| {
-        (0..n)
-            .map(|i| {
-                let v = u32_at(i * step + o);
-                [(v >> 16) as u8, (v >> 8) as u8, v as u8]
-            })
-            .collect()
-    });
-    let instance = instance.map(|(o, t)| {
-        (0..n)
-            .map(|i| {
-                let b = i * step + o;
-                if t == UINT16 {
-                    u32::from(u16::from_le_bytes([d[b], d[b + 1]]))
-                } else {
-                    u32_at(b)
-                }
-            })
-            .collect()
-    });
-    let generated = provenance.map(|(o, _)| (0..n).map(|i| d[i * step + o]).collect());
+    let instance = ids;
     Ok(PointCloud {
         positions,
         colors,

@@ -153,9 +153,14 @@ fn progress(stage: &str, fraction: f32) -> CompleteEvent {
 impl DeoccService {
     /// A service completing with `chain`; `model` says which model it is (for Health).
     pub fn new(chain: CompleterChain, model: String, config: ServerConfig) -> Self {
+        Self::from_shared(Arc::new(chain), model, config)
+    }
+
+    /// [`DeoccService::new`] with a chain shared with other users of the model.
+    pub fn from_shared(chain: Arc<CompleterChain>, model: String, config: ServerConfig) -> Self {
         let workers = config.workers.max(1);
         Self {
-            chain: Arc::new(chain),
+            chain,
             model,
             admission: Arc::new(Semaphore::new(workers + config.queue)),
             workers: Arc::new(Semaphore::new(workers)),

@@ -4,5 +4,6 @@
 pub mod geometry;
 pub mod memory;
 pub mod model;
+pub mod service;
 pub mod synth;
 pub mod timing;
