@@ -16,9 +16,11 @@ for crate in deocc-geometry deocc-io deocc-completion deocc-synth; do
   deny "$crate" candle-core "the geometry, I/O and completion-seam layers must stay free of the ML stack"
 done
 deny deocc-robot candle-core "robot tasks work on plain clouds, without the ML stack"
-for crate in deocc-completion deocc-pipeline deocc-model deocc-robot; do
+for crate in deocc-completion deocc-pipeline deocc-model deocc-robot deocc-service deocc-python; do
   deny "$crate" deocc-synth "the product path must not depend on the benchmark renderer"
 done
 deny deocc-pipeline candle-core "the pipeline talks to completers through deocc-completion, not candle"
 # Two test threads on two cores: candle's and rayon's pools collapse when oversubscribed.
 RUST_TEST_THREADS=2 cargo test --locked --workspace --release
+# The Python package: wheel built, installed in a venv, tested against the CLI.
+bash scripts/test_python.sh

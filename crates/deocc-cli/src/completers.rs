@@ -10,10 +10,6 @@ use deocc_completion::rules::RulesCompleter;
 use deocc_completion::{Completer, CompleterChain};
 use deocc_model::GlDotCompleter;
 
-/// The shipped model (weights/gldot-small), built in.
-const BUILTIN_TRAIN_JSON: &str = include_str!("../../../weights/gldot-small/train.json");
-const BUILTIN_WEIGHTS: &[u8] = include_bytes!("../../../weights/gldot-small/ema.safetensors");
-
 #[derive(Args, Clone, Debug)]
 pub struct CompleterArgs {
     /// Completers tried in order, comma-separated: each crop goes to the first that takes it
@@ -33,8 +29,7 @@ pub fn load_gldot(weights: Option<&Path>) -> Result<GlDotCompleter> {
     match weights {
         Some(dir) => GlDotCompleter::from_dir(dir, &device)
             .with_context(|| format!("loading the model from {}", dir.display())),
-        None => GlDotCompleter::from_bytes(BUILTIN_TRAIN_JSON, BUILTIN_WEIGHTS, &device)
-            .context("loading the built-in model"),
+        None => deocc_model::builtin::load(&device).context("loading the built-in model"),
     }
 }
 
@@ -63,15 +58,7 @@ pub fn describe_model(a: &CompleterArgs) -> String {
     }
     match &a.weights {
         Some(dir) => format!("{names} (weights {})", dir.display()),
-        None => {
-            // FNV-1a: a stable fingerprint of the built-in weights, not a security hash.
-            let h = BUILTIN_WEIGHTS
-                .iter()
-                .fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
-                    (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
-                });
-            format!("{names} (built-in gldot-small, fnv64 {h:016x})")
-        }
+        None => format!("{names} (built-in {})", deocc_model::builtin::fingerprint()),
     }
 }
 

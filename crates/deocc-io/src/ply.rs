@@ -542,7 +542,7 @@ fn read_vertices<R: BufRead>(
             out.push(row[k].max(0.0) as u32);
         }
         if let (Some(k), Some(out)) = (generated, cloud.generated.as_mut()) {
-            out.push((row[k] != 0.0) as u8);
+            out.push(row[k].clamp(0.0, 255.0) as u8);
         }
         for (e, &j) in extras.iter_mut().zip(&extra_columns) {
             e.1.push(row[j]);

@@ -47,7 +47,7 @@ fn awkward_cloud() -> PointCloud {
                 .map(|i| (i as u32).wrapping_mul(2_654_435_761))
                 .collect(),
         ),
-        generated: Some((0..n).map(|i| (i % 2) as u8).collect()),
+        generated: Some((0..n).map(|i| (i % 4) as u8).collect()),
         positions,
     }
 }

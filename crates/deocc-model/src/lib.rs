@@ -14,6 +14,7 @@
 //! - [`infer`]: loading a trained model and completing crops ([`GlDotCompleter`], one
 //!   implementation of the pipeline's `deocc_completion::Completer` seam).
 
+pub mod builtin;
 pub mod config;
 pub mod data;
 pub mod encode;

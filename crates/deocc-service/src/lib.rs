@@ -11,6 +11,8 @@ pub mod cloud2;
 pub mod request;
 pub mod server;
 
+pub use tonic::Code;
+
 /// The generated messages, client and server of `deocc.v1`.
 pub mod proto {
     #![allow(clippy::all, clippy::pedantic, missing_docs)]

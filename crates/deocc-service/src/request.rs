@@ -9,7 +9,7 @@ use deocc_geometry::DepthMap;
 use deocc_io::images::InstanceMap;
 use deocc_pipeline::{Frame, PipelineOptions, SceneInput};
 use image::RgbImage;
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::Isometry3;
 
 use crate::proto::{CameraInfo, CompleteRequest, Image};
 use crate::FieldError;
@@ -128,22 +128,9 @@ fn pose(m: &[f64], at: &str) -> Result<Isometry3<f32>, FieldError> {
             format!("has {} values, expected 16 (row-major 4x4)", m.len()),
         ));
     }
-    if m.iter().any(|v| !v.is_finite() || v.abs() > 1e6) {
-        return Err(bad(at, "values must be finite and under 1e6"));
-    }
-    if m[12..16] != [0.0, 0.0, 0.0, 1.0] {
-        return Err(bad(at, "the last row must be 0 0 0 1"));
-    }
-    let r = Matrix3::new(m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]);
-    let err = (r.transpose() * r - Matrix3::identity()).abs().max();
-    if err > 1e-3 || r.determinant() < 0.0 {
-        return Err(bad(at, "the rotation part is not a rotation"));
-    }
-    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r.cast()));
-    Ok(Isometry3::from_parts(
-        Translation3::from(Vector3::new(m[3], m[7], m[11]).cast::<f32>()),
-        q,
-    ))
+    let rows: [[f64; 4]; 4] = std::array::from_fn(|r| std::array::from_fn(|c| m[r * 4 + c]));
+    // The same parser as cameras.json's: a request and a scene folder give the same pose.
+    deocc_io::cameras::pose_from_rows(&rows).map_err(|e| bad(at, e))
 }
 
 fn frame(
@@ -351,7 +338,7 @@ pub fn request_from_scene(scene: &SceneInput, options_json: &str) -> CompleteReq
                 .flat_map(|&d| ((d * 1000.0).round().clamp(0.0, 65535.0) as u16).to_le_bytes())
                 .collect();
             let i = &f.camera.intrinsics;
-            let m = f.camera.world_from_camera.to_homogeneous();
+            let rows = deocc_io::cameras::pose_to_rows(&f.camera.world_from_camera);
             Frame2 {
                 name: f.name.clone(),
                 rgb: Some(image("rgb8", 3, f.rgb.as_raw().clone())),
@@ -372,10 +359,7 @@ pub fn request_from_scene(scene: &SceneInput, options_json: &str) -> CompleteReq
                     ],
                 }),
                 world_from_camera: if scene.posed {
-                    (0..4)
-                        .flat_map(|r| (0..4).map(move |c| (r, c)))
-                        .map(|(r, c)| m[(r, c)] as f64)
-                        .collect()
+                    rows.iter().flatten().copied().collect()
                 } else {
                     Vec::new()
                 },

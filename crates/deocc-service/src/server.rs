@@ -477,17 +477,45 @@ fn place(req: &PlaceRequest) -> Result<PlaceResponse, Status> {
     })
 }
 
+/// How long in-flight calls may take to finish after a shutdown signal before the server stops
+/// anyway (clients holding idle connections open would otherwise keep it up).
+pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(30);
+
 /// Serves on `listener` until `shutdown` resolves, then stops taking calls and lets the
-/// in-flight ones finish.
+/// in-flight ones finish (for at most [`SHUTDOWN_GRACE`]).
 pub async fn serve(
     service: DeoccService,
     listener: tokio::net::TcpListener,
     shutdown: impl std::future::Future<Output = ()> + Send,
 ) -> Result<(), tonic::transport::Error> {
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
-    tonic::transport::Server::builder()
-        .serve_with_incoming_shutdown(service.into_server(), incoming, shutdown)
-        .await
+    let (tx, rx) = tokio::sync::watch::channel(false);
+    let mut rx2 = rx.clone();
+    let server = tonic::transport::Server::builder().serve_with_incoming_shutdown(
+        service.into_server(),
+        incoming,
+        async move {
+            let mut rx = rx;
+            let _ = rx.wait_for(|&stop| stop).await;
+        },
+    );
+    let signal = async move {
+        shutdown.await;
+        let _ = tx.send(true);
+        std::future::pending::<()>().await
+    };
+    let grace = async move {
+        let _ = rx2.wait_for(|&stop| stop).await;
+        tokio::time::sleep(SHUTDOWN_GRACE).await;
+    };
+    tokio::select! {
+        r = server => r,
+        _ = signal => Ok(()),
+        _ = grace => {
+            tracing::warn!("in-flight calls did not finish within {SHUTDOWN_GRACE:?}; stopping");
+            Ok(())
+        }
+    }
 }
 
 /// SIGINT or SIGTERM.

@@ -237,9 +237,7 @@ pub fn service_bench(
         })
         .await
     });
-    let client = rt
-        .block_on(Client::connect(&addr, None))
-        .map_err(err)?;
+    let client = rt.block_on(Client::connect(&addr, None)).map_err(err)?;
     // Warm-up: one of each.
     let warm = direct(&chain)?;
     rt.block_on(client.clone().complete_scene(&scene, "", None))

@@ -1,0 +1,169 @@
+"""The installed `deocc` wheel: the example scene's cloud equals the CLI's bit for bit, two
+threads overlap in `run` (the GIL is released), bad input raises ValueError naming the argument,
+non-contiguous arrays are copied, grasp / place answer, and the service client works.
+
+Run by scripts/test_python.sh: python tests/test_deocc.py PATH_TO_DEOCC_BINARY
+"""
+
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import unittest
+
+import numpy as np
+
+import deocc
+
+DEOCC = os.path.abspath(sys.argv.pop(1)) if len(sys.argv) > 1 else "deocc"
+TMP = tempfile.mkdtemp(prefix="deocc-py-")
+
+
+def cli_example():
+    """`deocc run --example` once: its input scene folder and its completed cloud."""
+    out = os.path.join(TMP, "cli")
+    if not os.path.exists(os.path.join(out, "completed.ply")):
+        subprocess.run([DEOCC, "run", "--example", "--out", out], check=True,
+                       stdout=subprocess.DEVNULL)
+    return os.path.join(out, "input"), os.path.join(out, "completed.ply")
+
+
+def small(frames, n=2):
+    return [dict(f) for f in frames[:n]]
+
+
+class Deocc(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.scene, cls.ply = cli_example()
+        cls.frames, cls.structure = deocc.read_scene(cls.scene)
+
+    def test_example_matches_the_cli_bit_for_bit(self):
+        res = deocc.run(self.frames, structure_ids=self.structure)
+        cli = deocc.read_ply(self.ply)
+        self.assertEqual(res["points"].dtype, np.float32)
+        self.assertEqual(res["points"].shape[1], 3)
+        self.assertGreater(len(res["points"]), 100_000)
+        self.assertTrue(np.array_equal(res["points"], cli["points"]))
+        self.assertTrue(np.array_equal(res["colors"], cli["colors"]))
+        self.assertTrue(np.array_equal(res["instance"], cli["instance"]))
+        self.assertTrue(np.array_equal(res["provenance"], cli["provenance"]))
+        self.assertEqual(res["report"]["frames"], len(self.frames))
+
+    def test_two_threads_overlap_and_python_runs_meanwhile(self):
+        frames = small(self.frames, 3)
+        deocc.run(frames, completer="rules")  # warm
+        spans, ticks, done = [], [0], threading.Event()
+
+        def count():
+            while not done.is_set():
+                ticks[0] += 1
+
+        def work():
+            t0 = time.perf_counter()
+            deocc.run(frames, completer="rules")
+            spans.append((t0, time.perf_counter()))
+
+        counter = threading.Thread(target=count)
+        counter.start()
+        workers = [threading.Thread(target=work) for _ in range(2)]
+        for w in workers:
+            w.start()
+        for w in workers:
+            w.join()
+        done.set()
+        counter.join()
+        (a0, a1), (b0, b1) = spans
+        self.assertLess(max(a0, b0), min(a1, b1), "the two runs did not overlap")
+        # With the GIL held for a whole run, the counter would stall for its duration.
+        self.assertGreater(ticks[0], 10_000)
+
+    def test_bad_input_names_the_argument(self):
+        f = small(self.frames, 1)
+        bad = dict(f[0], depth=f[0]["depth"][:, :-1])
+        with self.assertRaisesRegex(ValueError, r"frames\[0\]\.depth"):
+            deocc.run([bad], completer="rules")
+        bad = dict(f[0], depth=f[0]["depth"].astype(np.float64))
+        with self.assertRaisesRegex(ValueError, r"frames\[0\]\['depth'\]"):
+            deocc.run([bad], completer="rules")
+        bad = dict(f[0], rgb=f[0]["rgb"][:, :, :2])
+        with self.assertRaisesRegex(ValueError, r"frames\[0\]\['rgb'\]: expected shape"):
+            deocc.run([bad], completer="rules")
+        bad = dict(f[0], K=[[1, 0], [0, 1]])
+        with self.assertRaisesRegex(ValueError, r"frames\[0\]\['K'\]"):
+            deocc.run([bad], completer="rules")
+        bad = dict(f[0])
+        del bad["depth"]
+        with self.assertRaisesRegex(ValueError, r'frames\[0\]: missing "depth"'):
+            deocc.run([bad], completer="rules")
+        with self.assertRaisesRegex(ValueError, "options_json"):
+            deocc.run(f, completer="rules", options={"stpes": 4})
+        with self.assertRaisesRegex(ValueError, "completer"):
+            deocc.run(f, completer="magic")
+
+    def test_non_contiguous_arrays_are_copied(self):
+        f = small(self.frames, 2)
+        def strided(a):
+            big = np.zeros((a.shape[0], 2 * a.shape[1]) + a.shape[2:], a.dtype)
+            big[:, ::2] = a
+            return big[:, ::2]
+
+        view = [dict(x, rgb=strided(x["rgb"]), depth=strided(x["depth"])) for x in f]
+        self.assertFalse(view[0]["rgb"].flags["C_CONTIGUOUS"])
+        a = deocc.run(f, completer="rules")
+        b = deocc.run(view, completer="rules")
+        self.assertTrue(np.array_equal(a["points"], b["points"]))
+        # Millimetres as uint16 give the same cloud as metres as float32.
+        mm = [dict(x, depth=np.round(x["depth"] * 1000).astype(np.uint16)) for x in f]
+        c = deocc.run(mm, completer="rules")
+        self.assertTrue(np.array_equal(a["points"], c["points"]))
+
+    def test_grasp_and_place_answer(self):
+        res = deocc.run(small(self.frames, 3), completer="rules")
+        placed = deocc.place(res["points"], footprint=(0.08, 0.08), height=0.12)
+        self.assertIn("maps", placed)
+        if placed["found"]:
+            self.assertEqual(len(placed["position"]), 3)
+        with self.assertRaisesRegex(ValueError, "target"):
+            deocc.grasp(res["points"], res["instance"], 60000)
+        with self.assertRaisesRegex(ValueError, r"points: expected shape \(N, 3\)"):
+            deocc.place(res["points"][:, :2].copy())
+
+    def test_the_service_client(self):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        server = subprocess.Popen(
+            [DEOCC, "serve", "--listen", f"127.0.0.1:{port}", "--completer", "rules"],
+            stderr=subprocess.PIPE, text=True)
+        try:
+            client = None
+            for _ in range(600):
+                try:
+                    client = deocc.Client(f"http://127.0.0.1:{port}")
+                    break
+                except RuntimeError:
+                    time.sleep(0.1)
+            self.assertIsNotNone(client, "the server did not come up")
+            self.assertTrue(client.health()["serving"])
+            f = small(self.frames, 2)
+            remote = client.complete(f)
+            local = deocc.run(f, completer="rules")
+            self.assertTrue(np.array_equal(remote["points"], local["points"]))
+            self.assertIn("complete", remote["stages"])
+            with self.assertRaisesRegex(ValueError, r"frames\[0\]\.camera_info\.k"):
+                client.complete([dict(f[0], K=[[np.nan, 0, 1], [0, 1, 1], [0, 0, 1]])])
+            del client
+        finally:
+            server.terminate()
+            code = server.wait(timeout=60)
+            err = server.stderr.read()
+            server.stderr.close()
+            self.assertEqual(code, 0, err)
+
+
+if __name__ == "__main__":
+    unittest.main(verbosity=2)

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# The Python package's test: builds the abi3 wheel with maturin, installs it into a fresh venv
+# (target/py-venv) with numpy, and runs crates/deocc-python/tests/test_deocc.py against the CLI
+# built from the same tree. Called by scripts/test.sh.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+venv=target/py-venv
+if [[ ! -x $venv/bin/python ]]; then
+  python3 -m venv "$venv"
+fi
+"$venv/bin/pip" install --quiet --disable-pip-version-check "maturin>=1.9,<2" "numpy>=1.21"
+rm -rf target/wheels
+"$venv/bin/maturin" build --release --locked --compatibility linux \
+  -m crates/deocc-python/Cargo.toml -o target/wheels
+"$venv/bin/pip" install --quiet --disable-pip-version-check --force-reinstall --no-deps target/wheels/deocc-*.whl
+cargo build --release --locked --bin deocc
+"$venv/bin/python" crates/deocc-python/tests/test_deocc.py target/release/deocc
