@@ -222,3 +222,29 @@ fn run_rejects_bad_input_without_leaving_output() {
     assert!(!o.status.success());
     assert!(busy.join("thesis.tex").exists());
 }
+
+/// `deocc serve` refuses bad settings before loading anything, naming the option.
+#[test]
+fn serve_refuses_bad_settings_naming_the_option() {
+    for (args, needle) in [
+        (vec!["--listen", "localhost"], "--listen"),
+        (vec!["--workers", "0"], "--workers"),
+        (vec!["--max-message-mib", "0"], "--max-message-mib"),
+        (vec!["--max-deadline-s", "nan"], "--max-deadline-s"),
+    ] {
+        let o = deocc().arg("serve").args(&args).output().unwrap();
+        assert!(!o.status.success(), "{args:?} was accepted");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let token = dir.path().join("token");
+    std::fs::write(&token, "  \n").unwrap();
+    let o = deocc()
+        .args(["serve", "--listen", "127.0.0.1:0", "--token-file"])
+        .arg(&token)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("token is empty"));
+}

@@ -427,3 +427,37 @@ fn incremental_fusion_equals_downsampling_everything() {
     assert!(incremental.len() > 1000);
     assert_eq!(incremental, at_once);
 }
+
+/// An observer sees every stage in order with rising fractions, and one that says stop at
+/// `complete` ends the run there with `Cancelled`, no completer called.
+#[test]
+fn an_observer_sees_each_stage_and_can_stop_the_run() {
+    use std::sync::Mutex;
+    struct Record(Mutex<Vec<(&'static str, f32)>>, Option<&'static str>);
+    impl deocc_pipeline::Observer for Record {
+        fn stage(&self, stage: &'static str, fraction: f32) -> bool {
+            self.0.lock().unwrap().push((stage, fraction));
+            Some(stage) != self.1
+        }
+    }
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let chain = CompleterChain::single(RulesCompleter::default());
+    let opts = PipelineOptions::default();
+    let all = Record(Mutex::new(Vec::new()), None);
+    deocc_pipeline::run_observed(&scene, &chain, &opts, &Vec::new(), &all).unwrap();
+    let seen = all.0.into_inner().unwrap();
+    let names: Vec<&str> = seen.iter().map(|s| s.0).collect();
+    let expected: Vec<&str> = deocc_pipeline::STAGES.iter().map(|s| s.0).collect();
+    assert_eq!(names, expected);
+    assert!(seen.windows(2).all(|w| w[0].1 < w[1].1));
+    let stop = Record(Mutex::new(Vec::new()), Some("complete"));
+    let e = deocc_pipeline::run_observed(&scene, &chain, &opts, &Vec::new(), &stop)
+        .err()
+        .unwrap();
+    assert!(matches!(
+        e,
+        deocc_pipeline::PipelineError::Cancelled { stage: "complete" }
+    ));
+    assert_eq!(stop.0.into_inner().unwrap().len(), 4);
+}

@@ -25,10 +25,12 @@ fn value_error(msg: impl Into<String>) -> PyErr {
     PyValueError::new_err(msg.into())
 }
 
+/// Chains by (completer names, weights folder).
+type Chains = HashMap<(String, Option<String>), Arc<CompleterChain>>;
+
 /// Completer chains by (names, weights folder), built once and shared by every call.
 fn chain(completer: &str, weights: Option<&str>) -> PyResult<Arc<CompleterChain>> {
-    static CHAINS: OnceLock<Mutex<HashMap<(String, Option<String>), Arc<CompleterChain>>>> =
-        OnceLock::new();
+    static CHAINS: OnceLock<Mutex<Chains>> = OnceLock::new();
     let key = (completer.to_string(), weights.map(str::to_string));
     let cache = CHAINS.get_or_init(Default::default);
     if let Some(c) = cache
