@@ -158,7 +158,7 @@ pub fn batch(a: BatchArgs) -> Result<()> {
             line.status = "skipped";
             skipped += 1;
         } else {
-            match crate::run::run_scene(Some(scene), &out, &chain, &opts, a.segment) {
+            match crate::run::run_scene(Some(scene), &out, &chain, &opts, a.segment, false) {
                 Ok(run) => {
                     let r = &run.result.report;
                     line.points_observed = Some(r.points_observed);

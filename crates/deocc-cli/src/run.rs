@@ -39,6 +39,10 @@ pub struct RunArgs {
     /// instance map are always segmented).
     #[arg(long)]
     segment: bool,
+    /// Also write OUT/recording.mcap: cameras, images, depth, instances and the cloud by
+    /// provenance, in Foxglove's schemas (open it in Foxglove Studio).
+    #[arg(long)]
+    mcap: bool,
 }
 
 /// What [`run_scene`] made: the pipeline's result, the evaluation against the scene's ground
@@ -59,6 +63,7 @@ pub fn run_scene(
     chain: &deocc_completion::CompleterChain,
     opts: &PipelineOptions,
     segment: bool,
+    mcap: bool,
 ) -> Result<SceneRun> {
     let staging = Staging::begin(out, input)?;
     let (input_dir, reported_input) = match input {
@@ -102,6 +107,13 @@ pub fn run_scene(
         &result,
         evaluation.as_ref(),
     )?;
+    if mcap {
+        deocc_pipeline::record::write_mcap(
+            &staging.dir().join("recording.mcap"),
+            &scene,
+            &result.completed,
+        )?;
+    }
     let out = staging.commit()?;
     Ok(SceneRun {
         result,
@@ -136,7 +148,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         result,
         evaluation,
         out,
-    } = run_scene(input.as_deref(), &a.out, &chain, &opts, a.segment)?;
+    } = run_scene(input.as_deref(), &a.out, &chain, &opts, a.segment, a.mcap)?;
     let r = &result.report;
     println!(
         "{} frames, {} instances completed by {} ({} with generated points, {:.2} objects/s), {} observed + {} generated points, {:.1} s",

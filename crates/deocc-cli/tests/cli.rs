@@ -248,3 +248,57 @@ fn serve_refuses_bad_settings_naming_the_option() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("token is empty"));
 }
+
+/// `deocc run --mcap` writes a recording an MCAP reader opens: every frame's images and
+/// calibration, the transforms, and the cloud by provenance.
+#[test]
+fn run_writes_an_mcap_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    let o = deocc()
+        .args([
+            "synth", "scenes", "--count", "1", "--seed", "9000000", "--views", "2",
+        ])
+        .args([
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--gt-density",
+            "200",
+            "--out",
+        ])
+        .arg(&scenes)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = dir.path().join("result");
+    let o = deocc()
+        .arg("run")
+        .arg(scenes.join("scene_000000"))
+        .args(["--completer", "rules", "--mcap", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bytes = std::fs::read(out.join("recording.mcap")).unwrap();
+    assert!(bytes.starts_with(b"\x89MCAP0\r\n"));
+    let mut topics = std::collections::BTreeMap::<String, usize>::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        assert!(v.is_object());
+        *topics.entry(m.channel.topic.clone()).or_default() += 1;
+    }
+    for t in [
+        "/deocc/camera/000000/rgb",
+        "/deocc/camera/000001/depth",
+        "/deocc/camera/000000/instances",
+        "/deocc/camera/000001/calibration",
+        "/deocc/points/observed",
+        "/deocc/points/rules",
+    ] {
+        assert_eq!(topics.get(t), Some(&1), "{t} in {topics:?}");
+    }
+    assert_eq!(topics.get("/tf"), Some(&2));
+}

@@ -35,6 +35,7 @@ pub mod options;
 pub mod output;
 pub mod planes;
 pub mod reconstruct;
+pub mod record;
 pub mod registration;
 pub mod render;
 pub mod report;

@@ -1,0 +1,194 @@
+//! Stage: record. A run as an MCAP file (`deocc run --mcap`), for Foxglove Studio or any MCAP
+//! reader: each frame's camera (calibration and its transform from `world`), colour, depth and
+//! instance images, and the completed cloud split by provenance into separate topics (observed,
+//! model, rules, plane fill), all in Foxglove's JSON schemas.
+//!
+//! Topics: `/deocc/camera/NAME/{rgb,depth,instances,calibration}`, `/tf`,
+//! `/deocc/points/{observed,model,rules,plane_fill}`. Frame k is logged at k x 0.1 s (scrub through
+//! the views); the clouds at 0.
+
+use std::collections::BTreeMap;
+use std::io::{BufWriter, Seek, Write};
+use std::path::Path;
+
+use base64::Engine;
+use deocc_geometry::{PointCloud, Provenance};
+use serde_json::{json, Value};
+
+use crate::{PipelineError, SceneInput};
+
+fn b64(bytes: &[u8]) -> String {
+    base64::engine::general_purpose::STANDARD.encode(bytes)
+}
+
+fn stamp(ns: u64) -> Value {
+    json!({ "sec": ns / 1_000_000_000, "nsec": ns % 1_000_000_000 })
+}
+
+struct Recorder<W: Write + Seek> {
+    w: mcap::Writer<W>,
+    channels: BTreeMap<String, u16>,
+}
+
+impl<W: Write + Seek> Recorder<W> {
+    fn log(&mut self, topic: &str, schema: &str, t_ns: u64, msg: &Value) -> mcap::McapResult<()> {
+        let id = match self.channels.get(topic) {
+            Some(&id) => id,
+            None => {
+                let body = json!({ "title": schema, "type": "object" }).to_string();
+                let sid = self.w.add_schema(schema, "jsonschema", body.as_bytes())?;
+                let id = self.w.add_channel(sid, topic, "json", &BTreeMap::new())?;
+                self.channels.insert(topic.to_string(), id);
+                id
+            }
+        };
+        let data = serde_json::to_vec(msg).unwrap_or_default();
+        self.w.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id: id,
+                sequence: 0,
+                log_time: t_ns,
+                publish_time: t_ns,
+            },
+            &data,
+        )
+    }
+}
+
+fn image(t: u64, frame_id: &str, w: u32, h: u32, encoding: &str, bpp: u32, data: &[u8]) -> Value {
+    json!({
+        "timestamp": stamp(t), "frame_id": frame_id, "width": w, "height": h,
+        "encoding": encoding, "step": w * bpp, "data": b64(data),
+    })
+}
+
+/// `cloud`'s points of provenance `p` as a foxglove.PointCloud (x y z float32, r g b a uint8).
+fn points(cloud: &PointCloud, p: Provenance) -> (usize, Value) {
+    let codes = cloud.generated.as_deref();
+    let mut data = Vec::new();
+    let mut n = 0;
+    for (i, q) in cloud.positions.iter().enumerate() {
+        if codes.map_or(0, |c| c[i]) != p.code() {
+            continue;
+        }
+        let c = cloud.colors.as_ref().map_or([128; 3], |c| c[i]);
+        for v in [q.x, q.y, q.z] {
+            data.extend_from_slice(&v.to_le_bytes());
+        }
+        data.extend_from_slice(&[c[0], c[1], c[2], 255]);
+        n += 1;
+    }
+    let field =
+        |name: &str, offset: u32, ty: u32| json!({"name": name, "offset": offset, "type": ty});
+    (
+        n,
+        json!({
+            "timestamp": stamp(0), "frame_id": "world",
+            "pose": {"position": {"x": 0, "y": 0, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}},
+            "point_stride": 16,
+            // foxglove.NumericType: UINT8 = 1, FLOAT32 = 7.
+            "fields": [field("x", 0, 7), field("y", 4, 7), field("z", 8, 7),
+                       field("red", 12, 1), field("green", 13, 1), field("blue", 14, 1), field("alpha", 15, 1)],
+            "data": b64(&data),
+        }),
+    )
+}
+
+fn record<W: Write + Seek>(
+    out: W,
+    scene: &SceneInput,
+    completed: &PointCloud,
+) -> mcap::McapResult<()> {
+    let mut r = Recorder {
+        w: mcap::Writer::new(out)?,
+        channels: BTreeMap::new(),
+    };
+    for (k, f) in scene.frames.iter().enumerate() {
+        let t = k as u64 * 100_000_000;
+        let id = format!("camera_{}", f.name);
+        let base = format!("/deocc/camera/{}", f.name);
+        let i = &f.camera.intrinsics;
+        let (w, h) = (i.width(), i.height());
+        let (fx, fy, cx, cy) = (i.fx(), i.fy(), i.cx(), i.cy());
+        r.log(
+            &format!("{base}/calibration"),
+            "foxglove.CameraCalibration",
+            t,
+            &json!({
+                "timestamp": stamp(t), "frame_id": id, "width": w, "height": h,
+                "distortion_model": "plumb_bob", "D": [0, 0, 0, 0, 0],
+                "K": [fx, 0, cx, 0, fy, cy, 0, 0, 1],
+                "R": [1, 0, 0, 0, 1, 0, 0, 0, 1],
+                "P": [fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0],
+            }),
+        )?;
+        let pose = &f.camera.world_from_camera;
+        let (tr, q) = (pose.translation.vector, pose.rotation);
+        r.log(
+            "/tf",
+            "foxglove.FrameTransform",
+            t,
+            &json!({
+                "timestamp": stamp(t), "parent_frame_id": "world", "child_frame_id": id,
+                "translation": {"x": tr.x, "y": tr.y, "z": tr.z},
+                "rotation": {"x": q.i, "y": q.j, "z": q.k, "w": q.w},
+            }),
+        )?;
+        r.log(
+            &format!("{base}/rgb"),
+            "foxglove.RawImage",
+            t,
+            &image(t, &id, w, h, "rgb8", 3, f.rgb.as_raw()),
+        )?;
+        let mm: Vec<u8> = f
+            .depth
+            .data()
+            .iter()
+            .flat_map(|&d| ((d * 1000.0).round().clamp(0.0, 65535.0) as u16).to_le_bytes())
+            .collect();
+        r.log(
+            &format!("{base}/depth"),
+            "foxglove.RawImage",
+            t,
+            &image(t, &id, w, h, "16UC1", 2, &mm),
+        )?;
+        if let Some(m) = &f.instances {
+            let ids: Vec<u8> = m.ids.iter().flat_map(|v| v.to_le_bytes()).collect();
+            r.log(
+                &format!("{base}/instances"),
+                "foxglove.RawImage",
+                t,
+                &image(t, &id, w, h, "mono16", 2, &ids),
+            )?;
+        }
+    }
+    for (p, topic) in [
+        (Provenance::Observed, "observed"),
+        (Provenance::Model, "model"),
+        (Provenance::Rules, "rules"),
+        (Provenance::PlaneFill, "plane_fill"),
+    ] {
+        let (n, msg) = points(completed, p);
+        if n > 0 {
+            r.log(
+                &format!("/deocc/points/{topic}"),
+                "foxglove.PointCloud",
+                0,
+                &msg,
+            )?;
+        }
+    }
+    r.w.finish().map(|_| ())
+}
+
+/// Writes the recording of a run to `path` (see the module docs).
+pub fn write_mcap(
+    path: &Path,
+    scene: &SceneInput,
+    completed: &PointCloud,
+) -> Result<(), PipelineError> {
+    let file = std::fs::File::create(path)
+        .map_err(|e| PipelineError::input(path, format!("cannot write: {e}")))?;
+    record(BufWriter::new(file), scene, completed)
+        .map_err(|e| PipelineError::input(path, format!("writing the MCAP recording: {e}")))
+}
