@@ -13,5 +13,7 @@ rm -rf target/wheels
 "$venv/bin/maturin" build --release --locked --compatibility linux \
   -m crates/deocc-python/Cargo.toml -o target/wheels
 "$venv/bin/pip" install --quiet --disable-pip-version-check --force-reinstall --no-deps target/wheels/deocc-*.whl
-cargo build --release --locked --bin deocc
+# The CLI the test compares against: built exactly as scripts/test.sh's `cargo test` builds it
+# (same feature unification, so nothing is compiled twice).
+cargo test --release --locked --workspace --no-run
 "$venv/bin/python" crates/deocc-python/tests/test_deocc.py target/release/deocc
