@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Sets up a fresh machine for deocc and builds it. Safe to run again.
-# Needs only the Rust toolchain (no apt packages are required on the main path; the optional peer
-# comparisons install their own with scripts/setup-peers.sh).
+# Needs the Rust toolchain, and Python 3.9+ with venv for the Python package's test (the wheel's
+# build tools and numpy are installed into target/py-venv by scripts/test_python.sh). No apt
+# packages are required; the optional peer comparisons install theirs with scripts/setup-peers.sh.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! command -v cargo >/dev/null 2>&1; then
@@ -10,6 +11,9 @@ if ! command -v cargo >/dev/null 2>&1; then
 fi
 if command -v rustup >/dev/null 2>&1; then
   rustup component add rustfmt clippy >/dev/null 2>&1 || echo "warning: could not add rustfmt/clippy with rustup" >&2
+fi
+if ! python3 -c 'import sys, venv; sys.exit(sys.version_info < (3, 9))' 2>/dev/null; then
+  echo "warning: python3 >= 3.9 with venv not found: the Python package's test (scripts/test_python.sh) needs it" >&2
 fi
 cargo build --release --locked --bin deocc
 echo "deocc built: target/release/deocc"
