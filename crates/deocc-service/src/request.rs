@@ -11,7 +11,7 @@ use deocc_pipeline::{Frame, PipelineOptions, SceneInput};
 use image::RgbImage;
 use nalgebra::Isometry3;
 
-use crate::proto::{CameraInfo, CompleteRequest, Image};
+use crate::proto::{CameraInfo, CompleteRequest, Frame as Frame2, Image};
 use crate::FieldError;
 
 /// What a request may hold.
@@ -380,5 +380,3 @@ pub fn request_from_scene(scene: &SceneInput, options_json: &str) -> CompleteReq
         structure_ids: scene.structure_ids.iter().map(|&i| u32::from(i)).collect(),
     }
 }
-
-use crate::proto::Frame as Frame2;

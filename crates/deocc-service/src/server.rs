@@ -202,6 +202,26 @@ impl DeoccService {
         }
     }
 
+    /// A unary call through the same queue as `Complete`: admitted, given a worker before its
+    /// deadline, run on the blocking pool.
+    async fn unary<T: Send + 'static, R: Send + 'static>(
+        &self,
+        req: Request<T>,
+        work: impl FnOnce(T) -> Result<R, Status> + Send + 'static,
+    ) -> Result<Response<R>, Status> {
+        let _admitted = self.admit()?;
+        let deadline = deadline(&req, self.config.max_deadline);
+        let req = req.into_inner();
+        let permit = self.worker(deadline).await?;
+        tokio::task::spawn_blocking(move || {
+            let _permit = permit;
+            work(req)
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?
+        .map(Response::new)
+    }
+
     /// The tonic service with the configured limits and token check.
     pub fn into_server(
         self,
@@ -257,14 +277,11 @@ impl Deocc for DeoccService {
         let deadline = deadline(&req, self.config.max_deadline);
         let req = req.into_inner();
         let limits = self.config.limits;
-        let (scene, opts) = tokio::task::spawn_blocking(move || {
-            scene_from_request(&req, &limits).map(|s| (s, req.segment))
-        })
-        .await
-        .map_err(|e| Status::internal(e.to_string()))?
-        .map_err(|e| status_of(&e))
-        .map(|((scene, opts), segment)| (scene, (opts, segment)))?;
-        let (opts, segment) = opts;
+        let segment = req.segment;
+        let (scene, opts) = tokio::task::spawn_blocking(move || scene_from_request(&req, &limits))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(|e| status_of(&e))?;
         let (tx, rx) = mpsc::channel(32);
         let _ = tx.try_send(Ok(progress("queued", 0.0)));
         let worker = self.worker(deadline);
@@ -326,31 +343,11 @@ impl Deocc for DeoccService {
     }
 
     async fn grasp(&self, req: Request<GraspRequest>) -> Result<Response<GraspResponse>, Status> {
-        let _admitted = self.admit()?;
-        let deadline = deadline(&req, self.config.max_deadline);
-        let req = req.into_inner();
-        let permit = self.worker(deadline).await?;
-        tokio::task::spawn_blocking(move || {
-            let _permit = permit;
-            grasp(&req)
-        })
-        .await
-        .map_err(|e| Status::internal(e.to_string()))?
-        .map(Response::new)
+        self.unary(req, |r| grasp(&r)).await
     }
 
     async fn place(&self, req: Request<PlaceRequest>) -> Result<Response<PlaceResponse>, Status> {
-        let _admitted = self.admit()?;
-        let deadline = deadline(&req, self.config.max_deadline);
-        let req = req.into_inner();
-        let permit = self.worker(deadline).await?;
-        tokio::task::spawn_blocking(move || {
-            let _permit = permit;
-            place(&req)
-        })
-        .await
-        .map_err(|e| Status::internal(e.to_string()))?
-        .map(Response::new)
+        self.unary(req, |r| place(&r)).await
     }
 
     async fn health(&self, _: Request<HealthRequest>) -> Result<Response<HealthResponse>, Status> {
