@@ -3,7 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo fmt --all -- --check
-cargo clippy --locked --all-targets --release -- -D warnings
+cargo clippy --locked --workspace --all-targets --all-features --release -- -D warnings
 # Layering (ARCHITECTURE.md): the light crates never pull the ML stack, and the product path
 # never depends on the benchmark renderer.
 deny() { # crate, forbidden dependency, why
@@ -16,11 +16,13 @@ for crate in deocc-geometry deocc-io deocc-completion deocc-synth; do
   deny "$crate" candle-core "the geometry, I/O and completion-seam layers must stay free of the ML stack"
 done
 deny deocc-robot candle-core "robot tasks work on plain clouds, without the ML stack"
-for crate in deocc-completion deocc-pipeline deocc-model deocc-robot deocc-service deocc-python; do
+deny deocc-ros2 candle-core "the ROS 2 messages and synchroniser build without the ML stack (the node brings it, with --features ros2)"
+for crate in deocc-completion deocc-pipeline deocc-model deocc-robot deocc-service deocc-python deocc-ros2; do
   deny "$crate" deocc-synth "the product path must not depend on the benchmark renderer"
 done
 deny deocc-pipeline candle-core "the pipeline talks to completers through deocc-completion, not candle"
 # Two test threads on two cores: candle's and rayon's pools collapse when oversubscribed.
-RUST_TEST_THREADS=2 cargo test --locked --workspace --release
+# --all-features: the ROS 2 bridge (deocc-ros2's `ros2` feature) and its loopback test.
+RUST_TEST_THREADS=2 cargo test --locked --workspace --all-features --release
 # The Python package: wheel built, installed in a venv, tested against the CLI.
 bash scripts/test_python.sh

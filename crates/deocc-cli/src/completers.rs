@@ -4,10 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::Result;
 use clap::Args;
-use deocc_completion::rules::RulesCompleter;
-use deocc_completion::{Completer, CompleterChain};
+use deocc_completion::CompleterChain;
 use deocc_model::GlDotCompleter;
 
 #[derive(Args, Clone, Debug)]
@@ -25,41 +24,19 @@ pub struct CompleterArgs {
 
 /// Loads GL-DoT from `weights`, or the built-in model.
 pub fn load_gldot(weights: Option<&Path>) -> Result<GlDotCompleter> {
-    let device = candle_core::Device::Cpu;
-    match weights {
-        Some(dir) => GlDotCompleter::from_dir(dir, &device)
-            .with_context(|| format!("loading the model from {}", dir.display())),
-        None => deocc_model::builtin::load(&device).context("loading the built-in model"),
-    }
+    deocc_model::chain::load_gldot(weights).map_err(anyhow::Error::msg)
 }
 
 /// The chain named by `--completer`.
 pub fn chain(a: &CompleterArgs) -> Result<CompleterChain> {
-    if a.completer.is_empty() {
-        bail!("--completer needs at least one of: gldot, rules");
-    }
-    let mut links: Vec<Box<dyn Completer>> = Vec::new();
-    for name in &a.completer {
-        match name.trim() {
-            "gldot" => links.push(Box::new(load_gldot(a.weights.as_deref())?)),
-            "rules" => links.push(Box::new(RulesCompleter::default())),
-            other => bail!("--completer: unknown completer '{other}' (known: gldot, rules)"),
-        }
-    }
-    Ok(CompleterChain::new(links))
+    deocc_model::chain::build(&a.completer, a.weights.as_deref())
+        .map_err(|e| anyhow::anyhow!("--completer: {e}"))
 }
 
 /// Which completers and which weights `a` names, for a server's Health answer and logs: e.g.
 /// `gldot,rules (built-in gldot-small, fnv64 1f3a...)`.
 pub fn describe_model(a: &CompleterArgs) -> String {
-    let names = a.completer.join(",");
-    if !a.completer.iter().any(|c| c.trim() == "gldot") {
-        return names;
-    }
-    match &a.weights {
-        Some(dir) => format!("{names} (weights {})", dir.display()),
-        None => format!("{names} (built-in {})", deocc_model::builtin::fingerprint()),
-    }
+    deocc_model::chain::describe(&a.completer, a.weights.as_deref())
 }
 
 /// Named chains for a benchmark's rows: each entry a chain spelled as `--completer` would

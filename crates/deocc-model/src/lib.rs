@@ -15,6 +15,7 @@
 //!   implementation of the pipeline's `deocc_completion::Completer` seam).
 
 pub mod builtin;
+pub mod chain;
 pub mod config;
 pub mod data;
 pub mod encode;

@@ -6,8 +6,7 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock};
 
-use deocc_completion::rules::RulesCompleter;
-use deocc_completion::{Completer, CompleterChain};
+use deocc_completion::CompleterChain;
 use deocc_geometry::PointCloud;
 use deocc_pipeline::segment::ConvexitySegmenter;
 use deocc_pipeline::Unobserved;
@@ -40,27 +39,11 @@ fn chain(completer: &str, weights: Option<&str>) -> PyResult<Arc<CompleterChain>
     {
         return Ok(c.clone());
     }
-    let mut links: Vec<Box<dyn Completer>> = Vec::new();
-    for name in completer.split(',') {
-        match name.trim() {
-            "gldot" => {
-                let device = candle_core::Device::Cpu;
-                let model = match weights {
-                    Some(dir) => deocc_model::GlDotCompleter::from_dir(dir.as_ref(), &device),
-                    None => deocc_model::builtin::load(&device),
-                }
-                .map_err(|e| value_error(format!("weights: {e}")))?;
-                links.push(Box::new(model));
-            }
-            "rules" => links.push(Box::new(RulesCompleter::default())),
-            other => {
-                return Err(value_error(format!(
-                    "completer: unknown completer {other:?} (known: gldot, rules)"
-                )))
-            }
-        }
-    }
-    let c = Arc::new(CompleterChain::new(links));
+    let names: Vec<&str> = completer.split(',').collect();
+    let c = Arc::new(
+        deocc_model::chain::build(&names, weights.map(std::path::Path::new))
+            .map_err(|e| value_error(format!("completer: {e}")))?,
+    );
     cache
         .lock()
         .map_err(|_| PyRuntimeError::new_err("poisoned"))?

@@ -8,6 +8,7 @@
 
 pub mod client;
 pub mod cloud2;
+pub mod local;
 pub mod request;
 pub mod server;
 

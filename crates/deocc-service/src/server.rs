@@ -15,7 +15,6 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use deocc_completion::CompleterChain;
-use deocc_pipeline::segment::ConvexitySegmenter;
 use deocc_pipeline::{Observer, PipelineError};
 use deocc_robot::place::{PlaceOptions, UnseenSpace};
 use deocc_robot::{AntipodalPlanner, GraspOptions, GraspPlanner, GridPlacer, PlacePlanner};
@@ -26,8 +25,8 @@ use tonic::{Request, Response, Status};
 
 use crate::proto::deocc_server::{Deocc, DeoccServer};
 use crate::proto::{
-    complete_event, CompleteEvent, CompleteRequest, CompleteResult, GraspPose, GraspRequest,
-    GraspResponse, HealthRequest, HealthResponse, PlaceRequest, PlaceResponse, Progress,
+    complete_event, CompleteEvent, CompleteRequest, GraspPose, GraspRequest, GraspResponse,
+    HealthRequest, HealthResponse, PlaceRequest, PlaceResponse, Progress,
 };
 use crate::request::{scene_from_request, Limits};
 use crate::{cloud2, FieldError};
@@ -306,24 +305,7 @@ impl Deocc for DeoccService {
             let result = tokio::task::spawn_blocking(move || {
                 let _permit = permit;
                 let observer = StreamObserver { tx, deadline };
-                let out = deocc_pipeline::run_in_memory(
-                    scene,
-                    &chain,
-                    &opts,
-                    &ConvexitySegmenter::default(),
-                    segment,
-                    &observer,
-                )?;
-                if !observer.send("encode", 0.99) {
-                    return Err(PipelineError::Cancelled { stage: "encode" });
-                }
-                let report = serde_json::to_string(&out.report).unwrap_or_default();
-                Ok(CompleteResult {
-                    cloud: Some(cloud2::encode(&out.completed)),
-                    report_json: report,
-                    points_observed: out.report.points_observed as u64,
-                    points_generated: out.report.points_generated as u64,
-                })
+                crate::local::complete(scene, &opts, segment, &chain, &observer)
             })
             .await;
             running.fetch_sub(1, Ordering::Relaxed);
