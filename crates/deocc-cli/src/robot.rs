@@ -270,3 +270,75 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         &img,
     )
 }
+
+/// Grasps (the best three on each completed object) and the placement map (default footprint)
+/// planned on a run's completed cloud, for its recording. `robot` is where the robot stands (the
+/// first camera). A task that finds nothing (no support surface, no grasp) is left out.
+pub fn recording_annotations(
+    cloud: &PointCloud,
+    robot: nalgebra::Point3<f32>,
+) -> deocc_pipeline::record::RobotAnnotations {
+    use deocc_pipeline::record::{RecordedGrasp, RobotAnnotations};
+    let ids = cloud.instance.as_deref().unwrap_or_default();
+    let generated = cloud.generated.as_deref().unwrap_or_default();
+    let mut completed: Vec<u32> = ids
+        .iter()
+        .zip(generated)
+        .filter(|&(&i, &g)| i != 0 && g != 0)
+        .map(|(&i, _)| i)
+        .collect();
+    completed.sort_unstable();
+    completed.dedup();
+    let planner = AntipodalPlanner {
+        options: GraspOptions::default(),
+    };
+    let g = &planner.options.gripper;
+    let finger = [g.depth, g.finger_width, g.finger_height];
+    let mut grasps = Vec::new();
+    for id in completed {
+        let target: Vec<_> = cloud
+            .positions
+            .iter()
+            .zip(ids)
+            .filter(|(_, &i)| i == id)
+            .map(|(p, _)| *p)
+            .collect();
+        if let Ok(found) = planner.plan(&cloud.positions, &target) {
+            grasps.extend(found.iter().take(3).map(|g| RecordedGrasp {
+                instance: id,
+                position: g.position,
+                rotation: g.rotation,
+                width: g.width,
+                finger,
+            }));
+        }
+    }
+    let options = PlaceOptions::default();
+    let (w, d, h, up) = (
+        options.footprint[0],
+        options.footprint[1],
+        options.height,
+        options.up,
+    );
+    let placer = GridPlacer {
+        options,
+        unseen: UnseenSpace::AsPoints,
+    };
+    let (mut placeable, mut placement) = (Vec::new(), None);
+    if let Ok((maps, best)) = placer.plan(&cloud.positions, &robot) {
+        let to_world = placer.options.level().inverse();
+        for m in &maps {
+            for (i, _) in m.placeable.iter().enumerate().filter(|(_, &p)| p) {
+                placeable.push((to_world * m.cell_center(i)).coords.into());
+            }
+        }
+        placement = best.map(|b| b.position);
+    }
+    RobotAnnotations {
+        grasps,
+        placeable,
+        placement,
+        object: [w, d, h],
+        up,
+    }
+}

@@ -108,10 +108,18 @@ pub fn run_scene(
         evaluation.as_ref(),
     )?;
     if mcap {
+        let robot = scene.frames[0]
+            .camera
+            .world_from_camera
+            .translation
+            .vector
+            .into();
+        let annotations = crate::robot::recording_annotations(&result.completed, robot);
         deocc_pipeline::record::write_mcap(
             &staging.dir().join("recording.mcap"),
             &scene,
             &result.completed,
+            Some(&annotations),
         )?;
     }
     let out = staging.commit()?;

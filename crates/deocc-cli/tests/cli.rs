@@ -250,7 +250,8 @@ fn serve_refuses_bad_settings_naming_the_option() {
 }
 
 /// `deocc run --mcap` writes a recording an MCAP reader opens: every frame's images and
-/// calibration, the transforms, and the cloud by provenance.
+/// calibration, the transforms, the cloud by provenance, and the grasps and placement map
+/// planned on the completed cloud.
 #[test]
 fn run_writes_an_mcap_recording() {
     let dir = tempfile::tempdir().unwrap();
@@ -284,11 +285,23 @@ fn run_writes_an_mcap_recording() {
     let bytes = std::fs::read(out.join("recording.mcap")).unwrap();
     assert!(bytes.starts_with(b"\x89MCAP0\r\n"));
     let mut topics = std::collections::BTreeMap::<String, usize>::new();
+    let mut grasps = None;
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();
         let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
         assert!(v.is_object());
+        if m.channel.topic == "/deocc/grasps" {
+            grasps = Some(v);
+        }
         *topics.entry(m.channel.topic.clone()).or_default() += 1;
+    }
+    // Each grasp a gripper of three boxes (palm, two fingers), in the world frame.
+    let grasps = grasps.expect("no /deocc/grasps message");
+    let entities = grasps["entities"].as_array().unwrap();
+    assert!(!entities.is_empty());
+    for e in entities {
+        assert_eq!(e["frame_id"], "world");
+        assert_eq!(e["cubes"].as_array().unwrap().len(), 3, "{e}");
     }
     for t in [
         "/deocc/camera/000000/rgb",
@@ -297,6 +310,8 @@ fn run_writes_an_mcap_recording() {
         "/deocc/camera/000001/calibration",
         "/deocc/points/observed",
         "/deocc/points/rules",
+        "/deocc/placeable",
+        "/deocc/placement",
     ] {
         assert_eq!(topics.get(t), Some(&1), "{t} in {topics:?}");
     }

@@ -4,8 +4,11 @@
 //! model, rules, plane fill), all in Foxglove's JSON schemas.
 //!
 //! Topics: `/deocc/camera/NAME/{rgb,depth,instances,calibration}`, `/tf`,
-//! `/deocc/points/{observed,model,rules,plane_fill}`. Frame k is logged at k x 0.1 s (scrub through
-//! the views); the clouds at 0.
+//! `/deocc/points/{observed,model,rules,plane_fill}`, and, when the caller planned robot tasks on
+//! the cloud ([`RobotAnnotations`]), `/deocc/grasps` (grippers as boxes: palm and two fingers,
+//! a colour per instance) and `/deocc/placeable` (the placeable cells as points) with
+//! `/deocc/placement` (the chosen spot, the object's box). Frame k is logged at k x 0.1 s (scrub
+//! through the views); the clouds and robot results at 0.
 
 use std::collections::BTreeMap;
 use std::io::{BufWriter, Seek, Write};
@@ -78,26 +81,165 @@ fn points(cloud: &PointCloud, p: Provenance) -> (usize, Value) {
         data.extend_from_slice(&[c[0], c[1], c[2], 255]);
         n += 1;
     }
+    (n, cloud_msg(&data))
+}
+
+/// A foxglove.PointCloud in `world` of 16-byte points: x y z float32, r g b a uint8.
+fn cloud_msg(data: &[u8]) -> Value {
     let field =
         |name: &str, offset: u32, ty: u32| json!({"name": name, "offset": offset, "type": ty});
-    (
-        n,
-        json!({
-            "timestamp": stamp(0), "frame_id": "world",
-            "pose": {"position": {"x": 0, "y": 0, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}},
-            "point_stride": 16,
-            // foxglove.NumericType: UINT8 = 1, FLOAT32 = 7.
-            "fields": [field("x", 0, 7), field("y", 4, 7), field("z", 8, 7),
-                       field("red", 12, 1), field("green", 13, 1), field("blue", 14, 1), field("alpha", 15, 1)],
-            "data": b64(&data),
-        }),
-    )
+    json!({
+        "timestamp": stamp(0), "frame_id": "world",
+        "pose": {"position": {"x": 0, "y": 0, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}},
+        "point_stride": 16,
+        // foxglove.NumericType: UINT8 = 1, FLOAT32 = 7.
+        "fields": [field("x", 0, 7), field("y", 4, 7), field("z", 8, 7),
+                   field("red", 12, 1), field("green", 13, 1), field("blue", 14, 1), field("alpha", 15, 1)],
+        "data": b64(data),
+    })
+}
+
+/// One planned grasp, as the recording draws it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordedGrasp {
+    pub instance: u32,
+    /// Centre of the palm's front face, world frame.
+    pub position: [f32; 3],
+    /// World-from-gripper rotation, row-major; columns approach, closing, height.
+    pub rotation: [[f32; 3]; 3],
+    /// Opening between the fingers, metres.
+    pub width: f32,
+    /// Finger size: along the approach, across (closing axis), along the height axis, metres.
+    pub finger: [f32; 3],
+}
+
+/// Robot-task results planned on the completed cloud (by the caller: the pipeline does not
+/// plan), drawn in the recording.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RobotAnnotations {
+    pub grasps: Vec<RecordedGrasp>,
+    /// Centres of the placeable cells, world frame.
+    pub placeable: Vec<[f32; 3]>,
+    /// The chosen placement: the footprint's centre on the support, world frame.
+    pub placement: Option<[f32; 3]>,
+    /// The placed object's footprint (w, d) and height, metres; `up` is gravity's opposite.
+    pub object: [f32; 3],
+    pub up: [f32; 3],
+}
+
+fn quat(r: &nalgebra::Rotation3<f32>) -> Value {
+    let q = nalgebra::UnitQuaternion::from_rotation_matrix(r);
+    json!({"x": q.i, "y": q.j, "z": q.k, "w": q.w})
+}
+
+fn cube(
+    centre: nalgebra::Point3<f32>,
+    r: &nalgebra::Rotation3<f32>,
+    size: [f32; 3],
+    rgba: [f32; 4],
+) -> Value {
+    json!({
+        "pose": {"position": {"x": centre.x, "y": centre.y, "z": centre.z}, "orientation": quat(r)},
+        "size": {"x": size[0], "y": size[1], "z": size[2]},
+        "color": {"r": rgba[0], "g": rgba[1], "b": rgba[2], "a": rgba[3]},
+    })
+}
+
+fn entity(id: &str, cubes: Vec<Value>) -> Value {
+    json!({
+        "timestamp": stamp(0), "frame_id": "world", "id": id,
+        "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": false, "metadata": [],
+        "arrows": [], "cubes": cubes, "spheres": [], "cylinders": [], "lines": [],
+        "triangles": [], "texts": [], "models": [],
+    })
+}
+
+/// A distinct colour for instance `id`.
+fn instance_colour(id: u32) -> [f32; 4] {
+    let h = (id.wrapping_mul(2_654_435_761) >> 8) as f32 / (1u32 << 24) as f32;
+    let c = |k: f32| ((h + k).fract() * 6.0 - 3.0).abs().clamp(1.0, 2.0) - 1.0;
+    [c(0.0), c(2.0 / 3.0), c(1.0 / 3.0), 0.8]
+}
+
+/// The gripper of `g` as three boxes: the palm behind the front face and the two fingers.
+fn gripper_cubes(g: &RecordedGrasp) -> Vec<Value> {
+    let m = nalgebra::Matrix3::from_fn(|i, j| g.rotation[i][j]);
+    let r = nalgebra::Rotation3::from_matrix(&m);
+    let (approach, closing) = (m.column(0).into_owned(), m.column(1).into_owned());
+    let p = nalgebra::Point3::from(g.position);
+    let [depth, fw, fh] = g.finger;
+    let colour = instance_colour(g.instance);
+    let palm_t = fw;
+    let mut out = vec![cube(
+        p - approach * (palm_t / 2.0),
+        &r,
+        [palm_t, g.width + 2.0 * fw, fh],
+        colour,
+    )];
+    for side in [-1.0f32, 1.0] {
+        out.push(cube(
+            p + approach * (depth / 2.0) + closing * (side * (g.width + fw) / 2.0),
+            &r,
+            [depth, fw, fh],
+            colour,
+        ));
+    }
+    out
+}
+
+fn record_robot<W: Write + Seek>(
+    r: &mut Recorder<W>,
+    a: &RobotAnnotations,
+) -> mcap::McapResult<()> {
+    if !a.grasps.is_empty() {
+        let entities: Vec<Value> = a
+            .grasps
+            .iter()
+            .enumerate()
+            .map(|(k, g)| entity(&format!("grasp_{}_{k}", g.instance), gripper_cubes(g)))
+            .collect();
+        r.log(
+            "/deocc/grasps",
+            "foxglove.SceneUpdate",
+            0,
+            &json!({"deletions": [], "entities": entities}),
+        )?;
+    }
+    if !a.placeable.is_empty() {
+        let mut data = Vec::with_capacity(a.placeable.len() * 16);
+        for c in &a.placeable {
+            for v in c {
+                data.extend_from_slice(&v.to_le_bytes());
+            }
+            data.extend_from_slice(&[40, 200, 80, 255]);
+        }
+        r.log(
+            "/deocc/placeable",
+            "foxglove.PointCloud",
+            0,
+            &cloud_msg(&data),
+        )?;
+    }
+    if let Some(p) = a.placement {
+        let up = nalgebra::Vector3::from(a.up).normalize();
+        let level = nalgebra::Rotation3::rotation_between(&nalgebra::Vector3::z(), &up)
+            .unwrap_or_else(nalgebra::Rotation3::identity);
+        let centre = nalgebra::Point3::from(p) + up * (a.object[2] / 2.0);
+        r.log(
+            "/deocc/placement",
+            "foxglove.SceneUpdate",
+            0,
+            &json!({"deletions": [], "entities": [entity("placement", vec![cube(centre, &level, a.object, [0.1, 0.9, 0.3, 0.6])])]}),
+        )?;
+    }
+    Ok(())
 }
 
 fn record<W: Write + Seek>(
     out: W,
     scene: &SceneInput,
     completed: &PointCloud,
+    robot: Option<&RobotAnnotations>,
 ) -> mcap::McapResult<()> {
     let mut r = Recorder {
         w: mcap::Writer::new(out)?,
@@ -178,6 +320,9 @@ fn record<W: Write + Seek>(
             )?;
         }
     }
+    if let Some(a) = robot {
+        record_robot(&mut r, a)?;
+    }
     r.w.finish().map(|_| ())
 }
 
@@ -186,9 +331,10 @@ pub fn write_mcap(
     path: &Path,
     scene: &SceneInput,
     completed: &PointCloud,
+    robot: Option<&RobotAnnotations>,
 ) -> Result<(), PipelineError> {
     let file = std::fs::File::create(path)
         .map_err(|e| PipelineError::input(path, format!("cannot write: {e}")))?;
-    record(BufWriter::new(file), scene, completed)
+    record(BufWriter::new(file), scene, completed, robot)
         .map_err(|e| PipelineError::input(path, format!("writing the MCAP recording: {e}")))
 }
