@@ -8,6 +8,8 @@
 //!   report.json                   the run report (+ the evaluation against ground truth, if any)
 //!   render_input_view.png         before / after from the first view, generated points in magenta
 //!   render_novel_view.png         the same from higher up and to the side
+//!   render_occluders_removed.png  before / after from the first view without the objects that
+//!                                 hid the completed ones (when there are any)
 //! ```
 //!
 //! [`Staging`] assembles the folder beside `OUT` (`.OUT.partial-PID`) and swaps it in only when
@@ -365,5 +367,42 @@ fn write_pictures(
         let c = splat(&result.completed, &novel, 1, true);
         deocc_io::images::write_rgb_png(&dir.join("render_novel_view.png"), &side_by_side(&b, &c))?;
     }
+    let hid = occluders_of_completed(&result.report, &scene.structure_ids);
+    if !hid.is_empty() {
+        let without = |c: &deocc_geometry::PointCloud| {
+            let ids = c.instance.as_deref().unwrap_or(&[]);
+            c.filter(|i| !ids.get(i).is_some_and(|id| hid.contains(id)))
+        };
+        let before = splat(&without(&result.observed), &cam, 1, true);
+        let after = splat(&without(&result.completed), &cam, 1, true);
+        deocc_io::images::write_rgb_png(
+            &dir.join("render_occluders_removed.png"),
+            &side_by_side(&before, &after),
+        )?;
+    }
     Ok(())
+}
+
+/// The instances that hide a completed object in the first view (room structure and completed
+/// objects themselves aside): what the occluders-removed picture leaves out.
+pub fn occluders_of_completed(report: &RunReport, structure: &[u16]) -> Vec<u32> {
+    let completed: Vec<u16> = report
+        .instances
+        .iter()
+        .filter(|i| i.generated_points > 0)
+        .map(|i| i.instance_id)
+        .collect();
+    let mut out: Vec<u32> = report
+        .occlusion
+        .first()
+        .into_iter()
+        .flatten()
+        .filter(|m| completed.contains(&m.instance_id))
+        .flat_map(|m| m.occluded_by.iter().copied())
+        .filter(|o| !completed.contains(o) && !structure.contains(o))
+        .map(u32::from)
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
 }
