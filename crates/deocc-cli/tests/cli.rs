@@ -157,6 +157,42 @@ fn run_makes_a_scene_more_complete_and_writes_every_output() {
     }
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    // The occluders-removed picture exists exactly when, in the first view, a completed object
+    // is hidden by an object that is neither completed nor room structure.
+    let meta: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(scenes.join("scene_000000/scene.json")).unwrap(),
+    )
+    .unwrap();
+    let structure: Vec<u64> = meta["objects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|o| o["structure"] == true)
+        .map(|o| o["instance_id"].as_u64().unwrap())
+        .collect();
+    let completed: Vec<u64> = report["run"]["instances"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|i| i["generated_points"].as_u64().unwrap() > 0)
+        .map(|i| i["instance_id"].as_u64().unwrap())
+        .collect();
+    let hidden_by_another = report["run"]["occlusion"][0]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|m| completed.contains(&m["instance_id"].as_u64().unwrap()))
+        .flat_map(|m| m["occluded_by"].as_array().unwrap().clone())
+        .any(|o| {
+            let o = o.as_u64().unwrap();
+            !completed.contains(&o) && !structure.contains(&o)
+        });
+    assert!(!completed.is_empty());
+    assert_eq!(
+        out.join("render_occluders_removed.png").exists(),
+        hidden_by_another,
+        "occluders-removed picture"
+    );
     let e = &report["evaluation"];
     let before = e["visible_only"]["hidden_region"]["completeness_mean"]
         .as_f64()
