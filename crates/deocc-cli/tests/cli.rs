@@ -170,14 +170,14 @@ fn run_makes_a_scene_more_complete_and_writes_every_output() {
         .filter(|o| o["structure"] == true)
         .map(|o| o["instance_id"].as_u64().unwrap())
         .collect();
-    let completed: Vec<u64> = report["run"]["instances"]
+    let completed: Vec<u64> = report["instances"]
         .as_array()
         .unwrap()
         .iter()
         .filter(|i| i["generated_points"].as_u64().unwrap() > 0)
         .map(|i| i["instance_id"].as_u64().unwrap())
         .collect();
-    let hidden_by_another = report["run"]["occlusion"][0]
+    let hidden_by_another = report["occlusion"][0]
         .as_array()
         .unwrap()
         .iter()
