@@ -15,6 +15,7 @@ fi
 if ! python3 -c 'import sys, venv; sys.exit(sys.version_info < (3, 9))' 2>/dev/null; then
   echo "warning: python3 >= 3.9 with venv not found: the Python package's test (scripts/test_python.sh) needs it" >&2
 fi
+bash scripts/dds-buffers.sh
 # deocc and its tests, built once exactly as scripts/test.sh builds them (same profile and
 # features, so the test run compiles nothing again).
 cargo test --release --locked --workspace --all-features --no-run

@@ -22,7 +22,9 @@ for crate in deocc-completion deocc-pipeline deocc-model deocc-robot deocc-servi
 done
 deny deocc-pipeline candle-core "the pipeline talks to completers through deocc-completion, not candle"
 # Two test threads on two cores: candle's and rayon's pools collapse when oversubscribed.
-# --all-features: the ROS 2 bridge (deocc-ros2's `ros2` feature) and its loopback test.
+# --all-features: the ROS 2 bridge (deocc-ros2's `ros2` feature) and its loopback test, which
+# needs a large UDP receive buffer.
+bash scripts/dds-buffers.sh
 RUST_TEST_THREADS=2 cargo test --locked --workspace --all-features --release
 # The Python package: wheel built, installed in a venv, tested against the CLI.
 bash scripts/test_python.sh

@@ -20,8 +20,8 @@ use deocc_service::request::{scene_from_request, Limits};
 use futures::StreamExt;
 use ros2_client::{
     qos::{Durability, History, WhenFull},
-    Context, ContextOptions, MessageTypeName, Name, Node, NodeName, NodeOptions, QosProfile,
-    ServiceMapping, ServiceTypeName,
+    Context, MessageTypeName, Name, Node, NodeName, NodeOptions, QosProfile, ServiceMapping,
+    ServiceTypeName,
 };
 use serde::de::DeserializeOwned;
 use serde::Serialize;
@@ -155,10 +155,19 @@ fn input_qos(reliable: bool) -> QosProfile {
     }
 }
 
+/// The UDP receive buffer a participant asks for. A completed cloud is tens of MB in one
+/// sample; whatever the buffer cannot hold while the reader catches up is dropped and repaired
+/// slowly (RustDDS re-sends at most 256 fragments a round). The kernel caps the request at
+/// `net.core.rmem_max` (often 4 MB: raise it, `sysctl -w net.core.rmem_max=67108864`).
+pub const RECEIVE_BUFFER_BYTES: usize = 64 << 20;
+
 /// A ROS 2 context on `domain_id`.
 pub fn context(domain_id: u16) -> Result<Context, BridgeError> {
-    Context::with_options(ContextOptions::new().domain_id(domain_id))
-        .map_err(|e| err("creating the DDS participant", e))
+    let participant = ros2_client::dds::rustdds::DomainParticipantBuilder::new(domain_id)
+        .socket_receive_buffer_size(RECEIVE_BUFFER_BYTES)
+        .build()
+        .map_err(|e| err("creating the DDS participant", e))?;
+    Context::from_domain_participant(participant).map_err(|e| err("creating the ROS 2 context", e))
 }
 
 /// A node named `name` in `namespace`.
