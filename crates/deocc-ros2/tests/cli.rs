@@ -1,0 +1,40 @@
+//! `deocc-ros2` refuses bad settings and input with a message naming them and a non-zero exit,
+//! before touching the network.
+#![cfg(feature = "ros2")]
+
+use std::process::Command;
+
+fn run(args: &[&str]) -> (bool, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_deocc-ros2"))
+        .args(args)
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn bad_settings_and_input_are_named() {
+    for (args, want) in [
+        (&["bridge", "--max-views", "0"][..], "--max-views"),
+        (&["bridge", "--slop-ms=-1"][..], "--slop-ms"),
+        (
+            &["bridge", "--options", "/no/such/options.json"][..],
+            "/no/such/options.json",
+        ),
+        (&["bridge", "--completer", "magic"][..], "magic"),
+        (&["play", "/no/such/scene"][..], "/no/such/scene"),
+        (&["play", "/tmp", "--period=-1"][..], "--period"),
+    ] {
+        let (ok, err) = run(args);
+        assert!(!ok, "{args:?} succeeded");
+        assert!(err.contains(want), "{args:?}: {err}");
+        assert!(
+            err.starts_with("error") || err.contains("error:"),
+            "{args:?}: {err}"
+        );
+    }
+}
