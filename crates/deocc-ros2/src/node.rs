@@ -181,12 +181,18 @@ fn topic_name(topic: &str, what: &str) -> Result<Name, BridgeError> {
     Name::parse(topic).map_err(|e| err(&format!("{what} topic {topic:?}"), e))
 }
 
+/// A ROS message type: package and name.
+pub type MsgType = (&'static str, &'static str);
+pub const IMAGE: MsgType = ("sensor_msgs", "Image");
+pub const CAMERA_INFO: MsgType = ("sensor_msgs", "CameraInfo");
+pub const POINT_CLOUD2: MsgType = ("sensor_msgs", "PointCloud2");
+pub const POSE_STAMPED: MsgType = ("geometry_msgs", "PoseStamped");
+
 /// A subscription to `topic` of type `pkg/ty`.
 pub fn subscribe<M: 'static + DeserializeOwned>(
     node: &mut Node,
     topic: &str,
-    pkg: &str,
-    ty: &str,
+    (pkg, ty): MsgType,
     qos: QosProfile,
 ) -> Result<ros2_client::Subscription<M>, BridgeError> {
     let t = node
@@ -200,8 +206,7 @@ pub fn subscribe<M: 'static + DeserializeOwned>(
 pub fn advertise<M: Serialize>(
     node: &mut Node,
     topic: &str,
-    pkg: &str,
-    ty: &str,
+    (pkg, ty): MsgType,
     qos: QosProfile,
 ) -> Result<ros2_client::Publisher<M>, BridgeError> {
     let t = node
@@ -246,44 +251,16 @@ pub async fn run(
     let mut node = node(&ctx, &cfg.namespace, &cfg.node_name)?;
     let path = node_path(&cfg.namespace, &cfg.node_name);
     let qos = input_qos(cfg.reliable_input);
-    let rgb = subscribe::<Image>(
-        &mut node,
-        &cfg.rgb_topic,
-        "sensor_msgs",
-        "Image",
-        qos.clone(),
-    )?;
-    let depth = subscribe::<Image>(
-        &mut node,
-        &cfg.depth_topic,
-        "sensor_msgs",
-        "Image",
-        qos.clone(),
-    )?;
-    let info = subscribe::<CameraInfo>(
-        &mut node,
-        &cfg.info_topic,
-        "sensor_msgs",
-        "CameraInfo",
-        qos.clone(),
-    )?;
-    let pose = match &cfg.pose_topic {
-        Some(t) => Some(subscribe::<PoseStamped>(
-            &mut node,
-            t,
-            "geometry_msgs",
-            "PoseStamped",
-            qos.clone(),
-        )?),
-        None => None,
-    };
-    let cloud_pub = advertise::<PointCloud2>(
-        &mut node,
-        &cloud_topic(&path),
-        "sensor_msgs",
-        "PointCloud2",
-        cloud_qos(),
-    )?;
+    let rgb = subscribe::<Image>(&mut node, &cfg.rgb_topic, IMAGE, qos.clone())?;
+    let depth = subscribe::<Image>(&mut node, &cfg.depth_topic, IMAGE, qos.clone())?;
+    let info = subscribe::<CameraInfo>(&mut node, &cfg.info_topic, CAMERA_INFO, qos.clone())?;
+    let pose = cfg
+        .pose_topic
+        .as_deref()
+        .map(|t| subscribe::<PoseStamped>(&mut node, t, POSE_STAMPED, qos.clone()))
+        .transpose()?;
+    let cloud_pub =
+        advertise::<PointCloud2>(&mut node, &cloud_topic(&path), POINT_CLOUD2, cloud_qos())?;
     let trigger_name = trigger_service(&path);
     let server = node
         .create_server::<TriggerRequest, TriggerResponse>(
@@ -466,46 +443,18 @@ pub async fn play(
     let qos = QosProfile::publisher_default()
         .reliability_reliable(WhenFull::Wait(Duration::from_secs(5)))
         .history(History::KeepLast { depth: 5 });
-    let rgb = advertise::<Image>(
-        &mut node,
-        &cfg.rgb_topic,
-        "sensor_msgs",
-        "Image",
-        qos.clone(),
-    )?;
-    let depth = advertise::<Image>(
-        &mut node,
-        &cfg.depth_topic,
-        "sensor_msgs",
-        "Image",
-        qos.clone(),
-    )?;
-    let info = advertise::<CameraInfo>(
-        &mut node,
-        &cfg.info_topic,
-        "sensor_msgs",
-        "CameraInfo",
-        qos.clone(),
-    )?;
-    let pose = match &cfg.pose_topic {
-        Some(t) => Some(advertise::<PoseStamped>(
-            &mut node,
-            t,
-            "geometry_msgs",
-            "PoseStamped",
-            qos.clone(),
-        )?),
-        None => None,
-    };
+    let rgb = advertise::<Image>(&mut node, &cfg.rgb_topic, IMAGE, qos.clone())?;
+    let depth = advertise::<Image>(&mut node, &cfg.depth_topic, IMAGE, qos.clone())?;
+    let info = advertise::<CameraInfo>(&mut node, &cfg.info_topic, CAMERA_INFO, qos.clone())?;
+    let pose = cfg
+        .pose_topic
+        .as_deref()
+        .map(|t| advertise::<PoseStamped>(&mut node, t, POSE_STAMPED, qos.clone()))
+        .transpose()?;
     let bridge = match &cfg.trigger {
         Some(path) => {
-            let cloud = subscribe::<PointCloud2>(
-                &mut node,
-                &cloud_topic(path),
-                "sensor_msgs",
-                "PointCloud2",
-                cloud_qos(),
-            )?;
+            let cloud =
+                subscribe::<PointCloud2>(&mut node, &cloud_topic(path), POINT_CLOUD2, cloud_qos())?;
             Some((path.clone(), cloud, trigger_client(&mut node, path)?))
         }
         None => None,

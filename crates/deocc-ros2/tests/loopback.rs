@@ -38,22 +38,12 @@ async fn a_million_point_cloud_arrives_intact() {
     let mut pub_node = node::node(&ctx_a, "/", "talker").unwrap();
     let mut sub_node = node::node(&ctx_b, "/", "listener").unwrap();
     let topic = "/deocc_test/points";
-    let publisher = node::advertise::<PointCloud2>(
-        &mut pub_node,
-        topic,
-        "sensor_msgs",
-        "PointCloud2",
-        node::cloud_qos(),
-    )
-    .unwrap();
-    let sub = node::subscribe::<PointCloud2>(
-        &mut sub_node,
-        topic,
-        "sensor_msgs",
-        "PointCloud2",
-        node::cloud_qos(),
-    )
-    .unwrap();
+    let publisher =
+        node::advertise::<PointCloud2>(&mut pub_node, topic, node::POINT_CLOUD2, node::cloud_qos())
+            .unwrap();
+    let sub =
+        node::subscribe::<PointCloud2>(&mut sub_node, topic, node::POINT_CLOUD2, node::cloud_qos())
+            .unwrap();
     let spin_a = tokio::spawn(pub_node.spinner().unwrap().spin());
     let spin_b = tokio::spawn(sub_node.spinner().unwrap().spin());
 
