@@ -33,6 +33,9 @@ class Cloud(TypedDict):
     """(N,) instance id, 0 = background."""
     provenance: npt.NDArray[np.uint8]
     """(N,) 0 observed, 1 GL-DoT, 2 plane fill, 3 rules completer."""
+    confidence: npt.NDArray[np.float32]
+    """(N,) 1 observed; generated: the completer's probability that the point's pixel belongs
+    to the object (0.5 for the support and plane fills, which measure none)."""
 
 class Result(Cloud):
     observed: Cloud

@@ -61,6 +61,13 @@ pub struct TrainArgs {
     /// Weight of the mask head's classification loss against the flow loss.
     #[arg(long, default_value_t = 1.0)]
     mask_loss_weight: f32,
+    /// Add the mean head (colour and depth residuals read at the first step, trained with L1);
+    /// with --init from a model without it, its channels start at zero (the base).
+    #[arg(long)]
+    mean_head: bool,
+    /// Weight of the mean head's L1 loss against the flow loss.
+    #[arg(long, default_value_t = 1.0)]
+    mean_loss_weight: f32,
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
@@ -77,6 +84,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
         model
             .validate()
             .map_err(|e| anyhow::anyhow!("--mask-prior {name}: {e}"))?;
+    }
+    if a.mean_head {
+        model.mean_head = true;
+        model
+            .validate()
+            .map_err(|e| anyhow::anyhow!("--mean-head: {e}"))?;
     }
     let mut shards = shards(&a.data, "train")
         .with_context(|| format!("{}: cannot list training pairs", a.data.display()))?;
@@ -100,6 +113,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if !(a.learning_rate.is_finite() && a.learning_rate > 0.0 && a.learning_rate < 1.0) {
         bail!("--learning-rate {} is outside (0, 1)", a.learning_rate);
     }
+    if !(a.mean_loss_weight.is_finite() && a.mean_loss_weight >= 0.0) {
+        bail!(
+            "--mean-loss-weight {} must be finite and non-negative",
+            a.mean_loss_weight
+        );
+    }
     if !(a.mask_loss_weight.is_finite() && a.mask_loss_weight >= 0.0) {
         bail!(
             "--mask-loss-weight {} must be finite and non-negative",
@@ -117,6 +136,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         checkpoint_every: a.checkpoint_every,
         channel_loss_weights: a.channel_loss_weights,
         mask_loss_weight: a.mask_loss_weight,
+        mean_loss_weight: a.mean_loss_weight,
         ..TrainConfig::default()
     };
     let opts = TrainRunOptions {

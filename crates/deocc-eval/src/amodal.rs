@@ -79,6 +79,54 @@ pub struct ChairLegs {
 }
 
 #[derive(Debug, Clone, Serialize)]
+pub struct Calibration {
+    /// Probability-weighted mean gap between the predicted probability and the share of object
+    /// pixels, over ten equal bins.
+    pub expected_calibration_error: f64,
+    pub bins: Vec<CalibrationBin>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CalibrationBin {
+    pub probability_up_to: f64,
+    pub pixels: usize,
+    pub mean_probability: f64,
+    pub object_fraction: f64,
+}
+
+/// Ten-bin reliability of probabilities `p` (scores outside [0, 1], such as the free-space
+/// constraint's -inf, are clamped) against labels.
+pub fn calibration(p: &[f32], labels: &[bool]) -> Calibration {
+    let mut acc = vec![(0usize, 0f64, 0usize); 10];
+    for (&s, &l) in p.iter().zip(labels) {
+        let s = if s.is_nan() { 0.0 } else { s.clamp(0.0, 1.0) };
+        let b = ((s * 10.0) as usize).min(9);
+        acc[b].0 += 1;
+        acc[b].1 += f64::from(s);
+        acc[b].2 += l as usize;
+    }
+    let total = p.len().max(1) as f64;
+    let bins: Vec<CalibrationBin> = acc
+        .iter()
+        .enumerate()
+        .map(|(k, &(n, sum, pos))| CalibrationBin {
+            probability_up_to: (k + 1) as f64 / 10.0,
+            pixels: n,
+            mean_probability: sum / n.max(1) as f64,
+            object_fraction: pos as f64 / n.max(1) as f64,
+        })
+        .collect();
+    let ece = bins
+        .iter()
+        .map(|b| b.pixels as f64 / total * (b.mean_probability - b.object_fraction).abs())
+        .sum();
+    Calibration {
+        expected_calibration_error: ece,
+        bins,
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
 pub struct CandidateAuc {
     /// Candidate pixels (not visible, the scene in front of the object): where a completer
     /// chooses.
@@ -124,6 +172,8 @@ pub struct ModelFacts {
     pub mask_threshold: f32,
     pub keep_prior: bool,
     pub samples_per_completion: usize,
+    /// Colour and depth from the mean head (read at the first step) rather than the flow's sample.
+    pub colour_depth_from_mean_head: bool,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -147,6 +197,11 @@ pub struct AmodalReport {
     pub training_categories_above_40: GroupRow,
     pub chair_legs: ChairLegs,
     pub candidate_auc: CandidateAuc,
+    /// Whether the mask probability on the candidate pixels means what it says (models with a
+    /// mask head): the share of object pixels in each tenth of the probability, and the expected
+    /// calibration error. The pipeline carries this probability to each generated point's
+    /// confidence.
+    pub candidate_calibration: Calibration,
     /// Hidden colour (mean absolute error per channel, 0-255) against the nearest visible colour.
     pub hidden_colour: Comparison,
     pub depth: DepthFigures,
@@ -581,6 +636,7 @@ pub fn evaluate_amodal(
             mask_threshold: c.mask_threshold,
             keep_prior: c.keep_prior,
             samples_per_completion: c.samples,
+            colour_depth_from_mean_head: c.model.config.mean_head && c.reads_mean,
         },
         miou_model: mean(scores.iter().map(|s| s.iou_model)),
         miou_prior: mean(scores.iter().map(|s| s.iou_prior)),
@@ -614,6 +670,7 @@ pub fn evaluate_amodal(
             model: roc_auc(&cand_scores, &cand_labels),
             distance_to_prior: roc_auc(&cand_dist, &cand_labels),
         },
+        candidate_calibration: calibration(&cand_scores, &cand_labels),
         hidden_colour: cmp(&|s| s.colour_model, &|s| s.colour_rules, &all, 21),
         depth: DepthFigures {
             near_hidden: cmp(&|s| s.near_model, &|s| s.near_rules, &all, 23),

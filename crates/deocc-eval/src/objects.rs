@@ -55,6 +55,30 @@ pub struct GeneratedAccuracy {
     pub within_2cm: f64,
 }
 
+/// Upper edges of the confidence bins of [`ObjectFigures::by_confidence`].
+pub const CONFIDENCE_BINS: [f32; 4] = [0.5, 0.7, 0.9, 1.0];
+
+/// Generated points whose confidence is in a bin, and how many lie on a true surface.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ConfidenceBin {
+    pub confidence_up_to: f32,
+    pub points: usize,
+    pub within_2cm: f64,
+}
+
+/// What [`object_scores`] measures of one scene.
+#[derive(Debug, Clone, Default)]
+pub struct ObjectFigures {
+    pub scores: Vec<ObjectScore>,
+    /// Generated points by provenance.
+    pub accuracy: BTreeMap<String, GeneratedAccuracy>,
+    /// Generated points (every provenance) by confidence bin ([`CONFIDENCE_BINS`]): (points,
+    /// within 2 cm).
+    pub by_confidence: [(usize, usize); 4],
+    /// Generated points of each predicted instance: (points, within 2 cm).
+    pub by_instance: BTreeMap<u32, (usize, usize)>,
+}
+
 /// Scores every non-structure object of a scene with hidden surface (see the module docs).
 /// `gt` carries instance ids; `seen[i]` says whether some view sees ground-truth point `i`.
 pub fn object_scores(
@@ -63,7 +87,7 @@ pub fn object_scores(
     seen: &[bool],
     categories: &BTreeMap<u16, Category>,
     scene_seed: u64,
-) -> Result<(Vec<ObjectScore>, BTreeMap<String, GeneratedAccuracy>), EvalError> {
+) -> Result<ObjectFigures, EvalError> {
     let gt_ids = gt
         .instance
         .as_deref()
@@ -162,7 +186,43 @@ pub fn object_scores(
             },
         );
     }
-    Ok((scores, accuracy))
+    let mut by_confidence = [(0usize, 0usize); 4];
+    let mut by_instance: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
+    for i in (0..prediction.len()).filter(|&i| codes[i] != Provenance::Observed.code()) {
+        let close = near[i].distance_sq <= COVER_DISTANCE_M * COVER_DISTANCE_M;
+        let c = prediction.confidence.as_ref().map_or(1.0, |c| c[i]);
+        let bin = CONFIDENCE_BINS
+            .iter()
+            .position(|&hi| c < hi)
+            .unwrap_or(CONFIDENCE_BINS.len() - 1);
+        by_confidence[bin].0 += 1;
+        by_confidence[bin].1 += close as usize;
+        let e = by_instance.entry(pred_ids[i]).or_default();
+        e.0 += 1;
+        e.1 += close as usize;
+    }
+    Ok(ObjectFigures {
+        scores,
+        accuracy,
+        by_confidence,
+        by_instance,
+    })
+}
+
+/// One completed instance of one scene, for choosing the quality gate's limits: how many of its
+/// generated points lie on a true surface, and what the gate measured of its completions.
+#[derive(Debug, Clone, Serialize)]
+pub struct GateStudyRow {
+    pub scene_seed: u64,
+    pub instance_id: u32,
+    pub points: usize,
+    pub within_2cm: f64,
+    /// Mean over the instance's fused completions.
+    pub mean_confidence: f32,
+    /// Largest over its fused completions.
+    pub seen_through_fraction: f32,
+    /// Whether the gate rejected one of its completions.
+    pub gated: bool,
 }
 
 /// One completer's row: objects' hidden recall and completeness, overall and by group.
@@ -176,6 +236,13 @@ pub struct CompleterRow {
     pub hidden_recall_furniture: f64,
     /// Generated points by provenance and the fraction on a true surface.
     pub generated: BTreeMap<String, GeneratedAccuracy>,
+    /// Generated points by confidence bin and the fraction on a true surface (whether the
+    /// confidence means what it says).
+    pub generated_by_confidence: Vec<ConfidenceBin>,
+    /// Completions the quality gate rejected.
+    pub completions_gated: usize,
+    /// Completed instances, their accuracy and the gate's measurements.
+    pub gate_study: Vec<GateStudyRow>,
     pub objects_per_second: f64,
 }
 
@@ -192,17 +259,18 @@ pub struct ObjectReport {
     pub recall_vs_rules_furniture: BTreeMap<String, Comparison>,
 }
 
-/// `deocc eval objects`: every named chain on the same bench-v1 scenes with the default
-/// segmenter, plane fill off; `tick` after each scene.
+/// `deocc eval objects`: every named chain on the same scenes of `preset` (bench-v1, or
+/// scenes of its config with other seeds) with the default segmenter, plane fill off; `tick`
+/// after each scene.
 pub fn object_benchmark(
     chains: &[(String, CompleterChain)],
     opts: &deocc_pipeline::PipelineOptions,
+    preset: &deocc_synth::dataset::Preset,
     scenes: usize,
     tick: &mut dyn FnMut(),
 ) -> Result<ObjectReport, EvalError> {
     use deocc_pipeline::instances::ensure_instances;
     use deocc_pipeline::segment::ConvexitySegmenter;
-    let preset = deocc_synth::dataset::bench_v1();
     let n = scenes.min(preset.seeds.len());
     let opts = deocc_pipeline::PipelineOptions {
         complete_planes: false,
@@ -213,6 +281,9 @@ pub fn object_benchmark(
     let mut generated: Vec<BTreeMap<String, (usize, usize)>> =
         vec![BTreeMap::new(); chains.len() + 1];
     let mut timing = vec![(0usize, 0f64); chains.len() + 1];
+    let mut bins = vec![[(0usize, 0usize); 4]; chains.len() + 1];
+    let mut gated = vec![0usize; chains.len() + 1];
+    let mut study: Vec<Vec<GateStudyRow>> = vec![Vec::new(); chains.len() + 1];
     for &seed in &preset.seeds[..n] {
         let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         let categories: BTreeMap<u16, Category> = rendered
@@ -230,10 +301,35 @@ pub fn object_benchmark(
             .enumerate()
         {
             let out = deocc_pipeline::run(&scene, chain, &opts, &Vec::new())?;
-            let (scores, acc) =
-                object_scores(&out.completed, &gt.cloud, &gt.seen, &categories, seed)?;
-            per_chain[k].extend(scores);
-            for (name, a) in acc {
+            let fig = object_scores(&out.completed, &gt.cloud, &gt.seen, &categories, seed)?;
+            per_chain[k].extend(fig.scores);
+            for (b, f) in bins[k].iter_mut().zip(fig.by_confidence) {
+                b.0 += f.0;
+                b.1 += f.1;
+            }
+            gated[k] += out.report.completions_gated;
+            let mut measured: BTreeMap<u32, (Vec<f32>, f32, bool)> = BTreeMap::new();
+            for r in &out.report.completions {
+                if let (Some(c), Some(x)) = (r.mean_confidence, r.seen_through_fraction) {
+                    let e = measured.entry(u32::from(r.instance_id)).or_default();
+                    e.0.push(c);
+                    e.1 = e.1.max(x);
+                    e.2 |= r.gated;
+                }
+            }
+            for (id, (confs, contradicted, was_gated)) in measured {
+                let (pts, close) = fig.by_instance.get(&id).copied().unwrap_or((0, 0));
+                study[k].push(GateStudyRow {
+                    scene_seed: seed,
+                    instance_id: id,
+                    points: pts,
+                    within_2cm: close as f64 / pts.max(1) as f64,
+                    mean_confidence: confs.iter().sum::<f32>() / confs.len().max(1) as f32,
+                    seen_through_fraction: contradicted,
+                    gated: was_gated,
+                });
+            }
+            for (name, a) in fig.accuracy {
                 let e = generated[k].entry(name).or_default();
                 e.0 += a.points;
                 e.1 += (a.within_2cm * a.points as f64).round() as usize;
@@ -273,6 +369,17 @@ pub fn object_benchmark(
                         )
                     })
                     .collect(),
+                generated_by_confidence: CONFIDENCE_BINS
+                    .iter()
+                    .zip(&bins[k])
+                    .map(|(&hi, &(pts, close))| ConfidenceBin {
+                        confidence_up_to: hi,
+                        points: pts,
+                        within_2cm: close as f64 / pts.max(1) as f64,
+                    })
+                    .collect(),
+                completions_gated: gated[k],
+                gate_study: study[k].clone(),
                 objects_per_second: timing[k].0 as f64 / timing[k].1.max(1e-9),
             }
         })
@@ -304,7 +411,7 @@ pub fn object_benchmark(
         }
     }
     Ok(ObjectReport {
-        benchmark: preset.name,
+        benchmark: preset.name.clone(),
         scenes: n,
         segmenter: "default (ConvexitySegmenter)".into(),
         rows,

@@ -51,6 +51,10 @@ impl Provenance {
     }
 }
 
+/// The confidence of generated points no probability was measured for (the support extension
+/// and the plane fill): even odds.
+pub const FILL_CONFIDENCE: f32 = 0.5;
+
 /// A point cloud: positions plus optional attributes, each attribute either absent or exactly as
 /// long as `positions` (checked by [`PointCloud::validate`], which loaders call).
 ///
@@ -64,6 +68,9 @@ pub struct PointCloud {
     pub instance: Option<Vec<u32>>,
     /// Provenance code per point ([`Provenance`]): 0 observed, 1 model, 2 plane fill, 3 rules.
     pub generated: Option<Vec<u8>>,
+    /// Confidence per point in [0, 1]: 1 for observed points; for generated ones the probability
+    /// the completer gave its pixel of belonging to the object (see the pipeline's fusion stage).
+    pub confidence: Option<Vec<f32>>,
 }
 
 impl PointCloud {
@@ -97,6 +104,7 @@ impl PointCloud {
         check("normals", self.normals.as_ref().map(Vec::len))?;
         check("instance ids", self.instance.as_ref().map(Vec::len))?;
         check("generated flags", self.generated.as_ref().map(Vec::len))?;
+        check("confidences", self.confidence.as_ref().map(Vec::len))?;
         if let Some(index) = self
             .positions
             .iter()
@@ -142,6 +150,7 @@ impl PointCloud {
             normals: pick(&self.normals, indices),
             instance: pick(&self.instance, indices),
             generated: pick(&self.generated, indices),
+            confidence: pick(&self.confidence, indices),
         }
     }
 
@@ -152,7 +161,8 @@ impl PointCloud {
     }
 
     /// Appends `other`. An attribute present on only one side is filled with a default on the
-    /// other (grey colour, zero normal, instance 0, observed), so provenance is never lost.
+    /// other (grey colour, zero normal, instance 0, observed, confidence 1), so provenance is never
+    /// lost.
     pub fn append(&mut self, other: &PointCloud) {
         fn merge<T: Copy>(
             a: &mut Option<Vec<T>>,
@@ -177,7 +187,14 @@ impl PointCloud {
         merge(&mut self.normals, &other.normals, na, nb, Vector3::zeros());
         merge(&mut self.instance, &other.instance, na, nb, 0);
         merge(&mut self.generated, &other.generated, na, nb, 0);
+        merge(&mut self.confidence, &other.confidence, na, nb, 1.0);
         self.positions.extend_from_slice(&other.positions);
+    }
+
+    /// Sets the confidence of every point.
+    pub fn with_confidence(mut self, confidence: f32) -> Self {
+        self.confidence = Some(vec![confidence; self.len()]);
+        self
     }
 
     /// Sets the provenance flag of every point.

@@ -30,7 +30,8 @@ fn check_voxel(voxel_m: f64) -> Result<f64> {
 
 /// One point per occupied voxel: the mean position (and mean colour and normal, where present),
 /// the most frequent instance id, and "generated" only if every point of the voxel was generated:
-/// an observed point always wins over a generated one.
+/// an observed point always wins over a generated one; the confidence is the mean over the
+/// voxel's points of the provenance that wins (1 where an observed point is in it).
 ///
 /// The grid is anchored as Open3D anchors it (min bound minus half a voxel), so the same voxels
 /// are formed. Output order is by voxel key, deterministic.
@@ -98,6 +99,22 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> 
             .map(|g| g.iter().map(|(_, i)| gen[*i as usize]).min().unwrap_or(0))
             .collect()
     });
+    let confidence = cloud.confidence.as_ref().map(|conf| {
+        groups
+            .par_iter()
+            .map(|g| {
+                let gen = cloud.generated.as_ref();
+                let best = gen.map(|gen| g.iter().map(|(_, j)| gen[*j as usize]).min());
+                let wins = |i: usize| gen.is_none_or(|gen| Some(gen[i]) == best.flatten());
+                let (s, n) = g
+                    .iter()
+                    .map(|(_, i)| *i as usize)
+                    .filter(|&i| wins(i))
+                    .fold((0f64, 0usize), |(s, n), i| (s + f64::from(conf[i]), n + 1));
+                (s / n.max(1) as f64) as f32
+            })
+            .collect()
+    });
     let instance = cloud.instance.as_ref().map(|ids| {
         groups
             .par_iter()
@@ -122,6 +139,7 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> 
         normals,
         instance,
         generated,
+        confidence,
     })
 }
 
@@ -246,9 +264,10 @@ impl VoxelGrid {
         same(&mut self.colors, part.colors.is_some(), "colours")?;
         same(&mut self.instance, part.instance.is_some(), "instance ids")?;
         same(&mut self.generated, part.generated.is_some(), "provenance")?;
-        if part.normals.is_some() {
+        if part.normals.is_some() || part.confidence.is_some() {
             return Err(GeometryError::InvalidArgument(
-                "voxel grid: normals are not averaged here; use voxel_downsample".into(),
+                "voxel grid: normals and confidences are not averaged here; use voxel_downsample"
+                    .into(),
             ));
         }
         let keys: Vec<[i32; 3]> = part
@@ -323,6 +342,7 @@ impl VoxelGrid {
             normals: None,
             instance,
             generated,
+            confidence: None,
         }
     }
 }

@@ -419,6 +419,52 @@ fn voxel_downsample_keeps_one_point_per_voxel_and_observed_wins() {
 }
 
 #[test]
+fn confidence_is_averaged_over_the_winning_provenance_and_filled_with_one() {
+    use nalgebra::Point3;
+    // One voxel: two generated points (0.2, 0.6) and, in a second voxel, generated points only.
+    let mut cloud = PointCloud::from_positions(vec![
+        Point3::new(0.01, 0.01, 0.01),
+        Point3::new(0.02, 0.01, 0.01),
+        Point3::new(0.03, 0.01, 0.01),
+        Point3::new(0.51, 0.01, 0.01),
+        Point3::new(0.52, 0.01, 0.01),
+    ]);
+    cloud.generated = Some(vec![1, 1, 0, 1, 1]);
+    cloud.confidence = Some(vec![0.2, 0.6, 1.0, 0.2, 0.6]);
+    let down = voxel_downsample(&cloud, 0.1).unwrap();
+    assert_eq!(down.len(), 2);
+    // The first voxel holds an observed point: observed, confidence 1 (not the mean 0.6).
+    assert_eq!(down.generated.as_deref(), Some(&[0u8, 1][..]));
+    let conf = down.confidence.as_deref().unwrap();
+    assert_eq!(conf[0], 1.0);
+    assert!((conf[1] - 0.4).abs() < 1e-6, "{conf:?}");
+    // Appending a cloud without confidences gives its points 1 (they are observed).
+    let mut both = PointCloud::from_positions(vec![Point3::origin()]);
+    both.append(&down);
+    assert_eq!(both.confidence.as_deref().unwrap()[0], 1.0);
+    assert_eq!(both.confidence.as_ref().unwrap().len(), 3);
+    // Fusion keeps the generated points' confidence and gives observed ones 1.
+    let observed = PointCloud::from_positions(vec![Point3::new(5.0, 5.0, 5.0)]);
+    let fused = fuse_generated(&observed, &cloud.filter(|i| i != 2), 0.1).unwrap();
+    assert_eq!(fused.len(), 3);
+    let conf = fused.confidence.as_deref().unwrap();
+    assert_eq!(conf[0], 1.0);
+    assert!(
+        conf[1..].iter().all(|&c| (c - 0.4).abs() < 1e-6),
+        "{conf:?}"
+    );
+    let mut bad = cloud.clone();
+    bad.confidence = Some(vec![1.0; 2]);
+    assert!(matches!(
+        bad.validate(),
+        Err(GeometryError::SizeMismatch {
+            what: "confidences",
+            ..
+        })
+    ));
+}
+
+#[test]
 fn fusion_adds_only_new_surface() {
     let observed = PointCloud::from_positions(common::random_points(5000, 81, 0.5));
     let mut generated_pts = common::random_points(5000, 82, 0.5); // same region: duplicates

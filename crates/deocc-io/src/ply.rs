@@ -7,7 +7,8 @@
 //! MeshLab, CloudCompare or Blender load.
 //!
 //! Written clouds carry `x y z` (float), `nx ny nz` (float), `red green blue` (uchar), `instance`
-//! (uint) and `generated` (uchar), each only when the cloud has that attribute.
+//! (uint), `generated` (uchar) and `confidence` (float), each only when the cloud has that
+//! attribute.
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
@@ -427,7 +428,7 @@ fn skip_property<R: BufRead>(
     Ok(())
 }
 
-const KNOWN_VERTEX_PROPERTIES: [&str; 18] = [
+const KNOWN_VERTEX_PROPERTIES: [&str; 19] = [
     "x",
     "y",
     "z",
@@ -446,6 +447,7 @@ const KNOWN_VERTEX_PROPERTIES: [&str; 18] = [
     "instance",
     "instance_id",
     "generated",
+    "confidence",
 ];
 
 type VertexData = (PointCloud, Vec<(String, Vec<f64>)>);
@@ -479,6 +481,7 @@ fn read_vertices<R: BufRead>(
     };
     let instance = find(&["instance", "instance_id", "label"]);
     let generated = find(&["generated"]);
+    let confidence = find(&["confidence"]);
     // Colours stored as float (0..1) are scaled to bytes.
     let color_is_float = color.is_some_and(|c| {
         matches!(
@@ -494,6 +497,7 @@ fn read_vertices<R: BufRead>(
         normals: normal.map(|_| Vec::with_capacity(cap)),
         instance: instance.map(|_| Vec::with_capacity(cap)),
         generated: generated.map(|_| Vec::with_capacity(cap)),
+        confidence: confidence.map(|_| Vec::with_capacity(cap)),
     };
     let extra_columns: Vec<usize> = (0..el.properties.len())
         .filter(|&j| {
@@ -543,6 +547,16 @@ fn read_vertices<R: BufRead>(
         }
         if let (Some(k), Some(out)) = (generated, cloud.generated.as_mut()) {
             out.push(row[k].clamp(0.0, 255.0) as u8);
+        }
+        if let (Some(k), Some(out)) = (confidence, cloud.confidence.as_mut()) {
+            let c = row[k] as f32;
+            if !(0.0..=1.0).contains(&c) {
+                return Err(data_err(
+                    path,
+                    format!("vertex {r} has confidence {c}, outside [0, 1]"),
+                ));
+            }
+            out.push(c);
         }
         for (e, &j) in extras.iter_mut().zip(&extra_columns) {
             e.1.push(row[j]);
@@ -672,6 +686,9 @@ fn write_ply_impl(
         if vertices.generated.is_some() {
             writeln!(w, "property uchar generated")?;
         }
+        if vertices.confidence.is_some() {
+            writeln!(w, "property float confidence")?;
+        }
         for (name, _) in extras {
             writeln!(w, "property uchar {name}")?;
         }
@@ -717,6 +734,9 @@ fn write_ascii_body(
         }
         if let Some(g) = &c.generated {
             write!(w, " {}", g[i])?;
+        }
+        if let Some(k) = &c.confidence {
+            write!(w, " {}", k[i])?;
         }
         for (_, v) in extras {
             write!(w, " {}", v[i])?;
@@ -770,6 +790,9 @@ fn write_binary_body(
         }
         if let Some(g) = &c.generated {
             row.push(g[i]);
+        }
+        if let Some(k) = &c.confidence {
+            row.extend_from_slice(&f(k[i]));
         }
         for (_, v) in extras {
             row.push(v[i]);

@@ -47,6 +47,9 @@ pub struct GlDotCompleter {
     /// Crops wider than this (metres, at the object's depth) are declined and go to the next
     /// completer of the chain ([`DEFAULT_MAX_CROP_WIDTH_M`]).
     pub max_crop_width_m: f32,
+    /// With a mean head: colour and depth from the mean head at the first step (one forward
+    /// pass; the default), or, off, from the flow's sample after all steps.
+    pub reads_mean: bool,
     pub device: Device,
 }
 
@@ -117,6 +120,7 @@ impl GlDotCompleter {
             samples: 1,
             keep_prior: false,
             max_crop_width_m: DEFAULT_MAX_CROP_WIDTH_M,
+            reads_mean: true,
             device: device.clone(),
         })
     }
@@ -126,6 +130,7 @@ impl GlDotCompleter {
         self.mask_threshold = cfg.mask_threshold;
         self.samples = cfg.inference_samples.max(1);
         self.keep_prior = cfg.mask_keeps_prior;
+        self.reads_mean = cfg.inference_reads_mean;
         self
     }
 
@@ -193,6 +198,25 @@ impl GlDotCompleter {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let noise = randn((b, r, r, TARGET_CHANNELS), &mut rng, &self.device)?;
         let cfg = &self.model.config;
+        if cfg.mean_head && self.reads_mean {
+            // One forward pass at t = 1: the mask head and the mean head, as they were trained.
+            let tc = cfg.target_channels;
+            let tt = Tensor::full(1f32, b, &self.device)?;
+            let out = self.model.forward(&noise, &tt, cond, &tokens)?;
+            let head = out.narrow(3, tc, 1)?;
+            let mean = out.narrow(3, tc + 1, crate::config::MEAN_CHANNELS)?;
+            let residual = Tensor::cat(
+                &[
+                    &mean.narrow(3, 0, 3)?,
+                    &head.zeros_like()?,
+                    &mean.narrow(3, 3, 2)?,
+                ],
+                3,
+            )?;
+            let x0 = (residual + residual_prior(cond, cfg.mask_prior, cfg.base)?)?;
+            let logit = (head + (cond.narrow(3, 6, 1)? * f64::from(PRIOR_LOGIT))?)?;
+            return Ok(Tensor::cat(&[&x0, &logit], 3)?);
+        }
         // The mask head is read at the first step (t = 1, pure noise), as it was trained.
         let mut head: Option<Tensor> = None;
         let x0 = euler_sample(&noise, steps, self.timestep_shift, |x, t| {

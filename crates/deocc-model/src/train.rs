@@ -82,6 +82,11 @@ pub struct TrainConfig {
     /// Fraction of each batch drawn at t = 1 and trained on the mask head (models with
     /// `mask_head`), in (0, 1].
     pub mask_head_noise_fraction: f64,
+    /// Weight of the mean head's L1 loss against the flow loss (models with `mean_head`).
+    pub mean_loss_weight: f32,
+    /// Inference, not training: with a mean head, colour and depth are the mean head's, read at
+    /// the first step (one forward pass); off, they are the flow's sample after all steps.
+    pub inference_reads_mean: bool,
 }
 
 impl Default for TrainConfig {
@@ -105,6 +110,8 @@ impl Default for TrainConfig {
             mask_keeps_prior: false,
             mask_loss_weight: 1.0,
             mask_head_noise_fraction: 0.5,
+            mean_loss_weight: 1.0,
+            inference_reads_mean: true,
         }
     }
 }
@@ -341,6 +348,12 @@ impl TrainConfig {
                 self.mask_loss_weight
             ));
         }
+        if !(self.mean_loss_weight.is_finite() && self.mean_loss_weight >= 0.0) {
+            return Err(format!(
+                "mean_loss_weight = {} must be finite and non-negative",
+                self.mean_loss_weight
+            ));
+        }
         let range = if self.model.mask_head {
             0.0..=1.0
         } else {
@@ -440,6 +453,39 @@ pub fn mask_head_loss(
     let dice = (((inter * 2.0)? + 1.0)? / (sums + 1.0)?)?;
     let dice = (dice.neg()? + 1.0)?.mean_all()?;
     bce + dice
+}
+
+/// Weight of a visible pixel in the mean head's loss (a hidden pixel weighs 1): the visible
+/// part's colour and near side are observed, and the figures are measured on the hidden part.
+pub const MEAN_VISIBLE_WEIGHT: f32 = 0.25;
+
+/// The mean head's loss: the L1 distance of its colour and depth residuals (B, R, R,
+/// [`crate::config::MEAN_CHANNELS`]) to the target's (`residual`, the target less the base, (B, R,
+/// R, 6)) over the object's pixels (the target mask, channel 3 of `target`), hidden pixels
+/// weighing 1 and visible ones [`MEAN_VISIBLE_WEIGHT`] (the visible mask, channel 3 of `cond`).
+/// L1, so the head estimates the median, which mean absolute errors reward.
+pub fn mean_head_loss(
+    mean: &Tensor,
+    residual: &Tensor,
+    target: &Tensor,
+    cond: &Tensor,
+) -> candle_core::Result<Tensor> {
+    let (b, r, _, _) = mean.dims4()?;
+    let want = Tensor::cat(&[residual.narrow(3, 0, 3)?, residual.narrow(3, 4, 2)?], 3)?;
+    let object = target.narrow(3, 3, 1)?.flatten_all()?.to_vec1::<f32>()?;
+    let visible = cond.narrow(3, 3, 1)?.flatten_all()?.to_vec1::<f32>()?;
+    let w: Vec<f32> = object
+        .iter()
+        .zip(&visible)
+        .map(|(&m, &v)| match (m > 0.0, v > 0.0) {
+            (false, _) => 0.0,
+            (true, true) => MEAN_VISIBLE_WEIGHT,
+            (true, false) => 1.0,
+        })
+        .collect();
+    let total = w.iter().sum::<f32>().max(1.0) * crate::config::MEAN_CHANNELS as f32;
+    let w = Tensor::from_vec(w, (b, r, r, 1), mean.device())?;
+    (mean - want)?.abs()?.broadcast_mul(&w)?.sum_all()? / f64::from(total)
 }
 
 /// A training run in memory.
@@ -754,7 +800,20 @@ impl Trainer {
             &cond.narrow(0, 0, head_samples)?,
             &target.narrow(0, 0, head_samples)?,
         )?;
-        flow + (mask * f64::from(cfg.mask_loss_weight))?
+        let loss = (flow + (mask * f64::from(cfg.mask_loss_weight))?)?;
+        if !m.mean_head {
+            return Ok(loss);
+        }
+        let mean = out
+            .narrow(3, m.target_channels + 1, crate::config::MEAN_CHANNELS)?
+            .narrow(0, 0, head_samples)?;
+        let l1 = mean_head_loss(
+            &mean,
+            &x0.narrow(0, 0, head_samples)?,
+            &target.narrow(0, 0, head_samples)?,
+            &cond.narrow(0, 0, head_samples)?,
+        )?;
+        loss + (l1 * f64::from(cfg.mean_loss_weight))?
     }
 
     /// One optimisation step on a random batch.

@@ -211,7 +211,6 @@ fn the_residual_starts_from_the_configured_mask_prior() {
 fn a_model_grown_by_the_mask_head_keeps_its_velocity_and_starts_at_the_prior() {
     use deocc_model::encode::PRIOR_LOGIT;
     let data = tiny_pairs();
-    let (old_dir, new_dir) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     let no_head = GlDotConfig {
         mask_head: false,
         ..GlDotConfig::tiny()
@@ -222,25 +221,7 @@ fn a_model_grown_by_the_mask_head_keeps_its_velocity_and_starts_at_the_prior() {
         steps: 2,
         ..TrainConfig::default()
     };
-    let mut old = Trainer::open(old_dir.path(), cfg(no_head), &Device::Cpu).unwrap();
-    for _ in 0..2 {
-        old.step(&data).unwrap();
-    }
-    old.checkpoint(old_dir.path()).unwrap();
-    let mut grown = Trainer::open(new_dir.path(), cfg(GlDotConfig::tiny()), &Device::Cpu).unwrap();
-    grown
-        .init_from(&old_dir.path().join("ema.safetensors"))
-        .unwrap();
-    grown.checkpoint(new_dir.path()).unwrap();
-    let (_, cond) = data.batch(&[0, 1], &[false, false], &Device::Cpu).unwrap();
-    let a = GlDotCompleter::from_dir(old_dir.path(), &Device::Cpu)
-        .unwrap()
-        .complete(&cond, &[], 0.0, 2, 7)
-        .unwrap();
-    let b = GlDotCompleter::from_dir(new_dir.path(), &Device::Cpu)
-        .unwrap()
-        .complete(&cond, &[], 0.0, 2, 7)
-        .unwrap();
+    let (a, b, cond, _, _dirs) = grow_and_complete(&data, cfg(no_head), cfg(GlDotConfig::tiny()));
     let c: Vec<f32> = cond.flatten_all().unwrap().to_vec1().unwrap();
     let cc = deocc_model::encode::COND_CHANNELS;
     let (on, off) = (
@@ -350,4 +331,115 @@ fn rules_base_targets_are_the_base_outside_the_object() {
         .chunks_exact(TARGET_CHANNELS)
         .filter(|p| p[3] <= 0.0)
         .all(|p| p[0] == 1.0 && p[4] == 0.0));
+}
+
+/// A model grown by the mean head keeps its mask head's scores, and its zero mean head gives the
+/// base exactly: the nearest visible colour and the rules' near and far sides (condition
+/// channels 7-11). Training then lowers the mean head's loss.
+#[test]
+fn a_model_grown_by_the_mean_head_starts_at_the_base_and_learns() {
+    use deocc_model::encode::{COND_CHANNELS, DEPTH_SCALE};
+    let data = tiny_pairs();
+    let cfg = |model: GlDotConfig, steps: usize| TrainConfig {
+        model,
+        batch_size: 4,
+        steps,
+        learning_rate: 3e-3,
+        warmup_steps: 1,
+        ..TrainConfig::default()
+    };
+    let with_mean = GlDotConfig {
+        mean_head: true,
+        ..GlDotConfig::tiny()
+    };
+    let (a, b, cond, mut grown, _dirs) =
+        grow_and_complete(&data, cfg(GlDotConfig::tiny(), 2), cfg(with_mean, 200));
+    let c: Vec<f32> = cond.flatten_all().unwrap().to_vec1().unwrap();
+    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert_eq!(x.mask_score, y.mask_score, "the mask head is untouched");
+        let n = y.depth_rel.len();
+        for p in 0..n {
+            let ch = &c[(k * n + p) * COND_CHANNELS..(k * n + p + 1) * COND_CHANNELS];
+            for j in 0..3 {
+                let base = ((ch[7 + j] + 1.0) * 127.5).round().clamp(0.0, 255.0) as u8;
+                assert_eq!(y.rgb[3 * p + j], base, "pixel {p} channel {j}");
+            }
+            assert!((y.depth_rel[p] - ch[10] / DEPTH_SCALE).abs() < 1e-6);
+            assert!((y.back_depth_rel[p] - ch[11] / DEPTH_SCALE).abs() < 1e-6);
+        }
+    }
+    // The mean head's loss falls with training (the flow and mask losses train beside it).
+    let mean_loss = |t: &Trainer| {
+        use deocc_model::train::mean_head_loss;
+        let idx: Vec<usize> = (0..data.len().min(8)).collect();
+        let flips = vec![false; idx.len()];
+        let (target, cond) = data.batch(&idx, &flips, &Device::Cpu).unwrap();
+        let base = deocc_model::encode::residual_prior(
+            &cond,
+            t.config.model.mask_prior,
+            t.config.model.base,
+        )
+        .unwrap();
+        let residual = (&target - base).unwrap();
+        let b = idx.len();
+        let r = t.config.model.resolution;
+        let noise = randn((b, r, r, 6), &mut rng(5), &Device::Cpu).unwrap();
+        let tt = Tensor::full(1f32, b, &Device::Cpu).unwrap();
+        let tokens = t.model.encode(&cond).unwrap();
+        let out = t.model.forward(&noise, &tt, &cond, &tokens).unwrap();
+        let mean = out.narrow(3, 7, 5).unwrap();
+        mean_head_loss(&mean, &residual, &target, &cond)
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap()
+    };
+    let before = mean_loss(&grown);
+    for _ in 0..200 {
+        grown.step(&data).unwrap();
+    }
+    let after = mean_loss(&grown);
+    assert!(after < before * 0.9, "mean-head loss {before} -> {after}");
+    let no_mask = GlDotConfig {
+        mask_head: false,
+        mean_head: true,
+        ..GlDotConfig::tiny()
+    };
+    assert!(no_mask.validate().unwrap_err().contains("mean_head needs"));
+}
+
+/// Trains `old` two steps, warm-starts a fresh run of `new` from its EMA weights (growing the
+/// output layer), and completes pairs 0 and 1 with both: (old's, the grown one's, the condition,
+/// the grown trainer). The run folders live as long as the returned guard.
+#[allow(clippy::type_complexity)]
+fn grow_and_complete(
+    data: &deocc_model::data::PairData,
+    old: TrainConfig,
+    new: TrainConfig,
+) -> (
+    Vec<deocc_model::infer::Completion>,
+    Vec<deocc_model::infer::Completion>,
+    Tensor,
+    Trainer,
+    [tempfile::TempDir; 2],
+) {
+    let (old_dir, new_dir) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let mut first = Trainer::open(old_dir.path(), old, &Device::Cpu).unwrap();
+    for _ in 0..2 {
+        first.step(data).unwrap();
+    }
+    first.checkpoint(old_dir.path()).unwrap();
+    let mut grown = Trainer::open(new_dir.path(), new, &Device::Cpu).unwrap();
+    grown
+        .init_from(&old_dir.path().join("ema.safetensors"))
+        .unwrap();
+    grown.checkpoint(new_dir.path()).unwrap();
+    let (_, cond) = data.batch(&[0, 1], &[false, false], &Device::Cpu).unwrap();
+    let complete = |dir: &std::path::Path| {
+        GlDotCompleter::from_dir(dir, &Device::Cpu)
+            .unwrap()
+            .complete(&cond, &[], 0.0, 2, 7)
+            .unwrap()
+    };
+    let (a, b) = (complete(old_dir.path()), complete(new_dir.path()));
+    (a, b, cond, grown, [old_dir, new_dir])
 }

@@ -20,10 +20,23 @@ pub fn hidden_tolerance_m(z: f32) -> f32 {
     0.02 + 0.01 * z
 }
 
-/// Every view that has a measurement where `p` projects sees something in front of it, and at
-/// least one view does.
-pub fn hidden_in_views(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -> bool {
-    let mut hidden = false;
+/// What the views say of a point.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Evidence {
+    /// Every view with a measurement there sees something in front of it (and one view does).
+    Hidden,
+    /// Some view measures the point's own depth (within [`hidden_tolerance_m`]) and none sees
+    /// through it: the sensor agrees with it.
+    Observed,
+    /// Some view measures beyond it: the sensor saw empty space where the point is.
+    SeenThrough,
+    /// No view has a measurement where it projects.
+    Unmeasured,
+}
+
+/// What the views of `scene` say of `p` (see [`Evidence`]).
+pub fn evidence(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -> Evidence {
+    let mut out = Evidence::Unmeasured;
     for (f, proj) in scene.frames.iter().zip(projectors) {
         let Some((x, y, z)) = proj.project(p) else {
             continue;
@@ -36,14 +49,23 @@ pub fn hidden_in_views(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projec
         if d <= 0.0 {
             continue;
         }
-        if d < z - hidden_tolerance_m(z) {
-            hidden = true;
-        } else {
-            // The sensor saw it (observed already) or saw through it (free space).
-            return false;
+        let tol = hidden_tolerance_m(z);
+        if d > z + tol {
+            return Evidence::SeenThrough;
+        }
+        if d >= z - tol {
+            out = Evidence::Observed;
+        } else if out == Evidence::Unmeasured {
+            out = Evidence::Hidden;
         }
     }
-    hidden
+    out
+}
+
+/// Every view that has a measurement where `p` projects sees something in front of it, and at
+/// least one view does.
+pub fn hidden_in_views(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -> bool {
+    evidence(p, scene, projectors) == Evidence::Hidden
 }
 
 /// The points of `cloud` hidden in every view of `scene` (see [`hidden_in_views`]), and how many

@@ -2,13 +2,13 @@
 //! fitted to the observed depth on the visible pixels (robust Huber scale and shift); a poor fit
 //! is rejected. Then what was hidden is back-projected into world points: the near side where
 //! the object is revealed (amodal minus visible, and only where something in front hid it) and
-//! the far side (its back) wherever the object is.
+//! the far side (its back) wherever the object is. Every generated point carries the completer's
+//! probability that its pixel belongs to the object as its confidence.
 
 use deocc_completion::{CropCompletion, Provenance};
 use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
 use deocc_geometry::PointCloud;
 use deocc_io::scene::Frame;
-use nalgebra::Point3;
 
 use crate::crops::CropWindow;
 use crate::report::CompletionRecord;
@@ -47,6 +47,9 @@ pub fn fuse_completion(
         new_points: 0,
         metric_scale_m: window.metric_scale_m,
         fit: None,
+        mean_confidence: None,
+        seen_through_fraction: None,
+        gated: false,
         accepted: false,
         reason: String::new(),
     };
@@ -70,17 +73,22 @@ pub fn fuse_completion(
     }
     let mut positions = Vec::new();
     let mut colors = Vec::new();
-    let push = |k: usize,
-                z: f32,
-                shade: f32,
-                positions: &mut Vec<Point3<f32>>,
-                colors: &mut Vec<[u8; 3]>| {
+    let mut confidence = Vec::new();
+    let mut push = |k: usize, z: f32, shade: f32| {
         let (u, v) = window.pixel_centre(k);
         let p_cam = frame.camera.intrinsics.unproject(u, v, z);
         positions.push(frame.camera.world_from_camera.transform_point(&p_cam));
         colors.push(std::array::from_fn(|c| {
             (completion.rgb[3 * k + c] as f32 * shade) as u8
         }));
+        confidence.push(
+            completion
+                .mask_probability
+                .get(k)
+                .copied()
+                .unwrap_or(0.5)
+                .clamp(0.0, 1.0),
+        );
     };
     for (k, &is_visible) in visible.iter().enumerate().take(n) {
         if !completion.amodal[k] || window.source_pixel[k].is_none() {
@@ -98,7 +106,7 @@ pub fn fuse_completion(
             if obs > 0.0 && obs > z - FREE_SPACE_MARGIN_M {
                 continue; // the sensor saw this pixel at or beyond the generated depth: nothing hides it
             }
-            push(k, z, 1.0, &mut positions, &mut colors);
+            push(k, z, 1.0);
             z
         };
         // Far side (the object's back, which no view shows), behind the near side.
@@ -107,7 +115,7 @@ pub fn fuse_completion(
             && back > front + MIN_THICKNESS_M
             && !(obs > 0.0 && obs > back + FREE_SPACE_MARGIN_M)
         {
-            push(k, back, 0.75, &mut positions, &mut colors);
+            push(k, back, 0.75);
         }
     }
     record.new_points = positions.len();
@@ -119,6 +127,7 @@ pub fn fuse_completion(
         colors: Some(colors),
         instance: Some(vec![window.instance_id as u32; len]),
         generated: Some(vec![provenance.code(); len]),
+        confidence: Some(confidence),
         normals: None,
     };
     (cloud, record)

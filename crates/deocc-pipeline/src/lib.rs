@@ -28,6 +28,7 @@ pub mod complete;
 pub mod crops;
 pub mod error;
 pub mod fuse;
+pub mod gate;
 pub mod instances;
 pub mod matching;
 pub mod occlusion;
@@ -201,9 +202,10 @@ pub fn run_observed(
     let t = Instant::now();
     let mut generated = PointCloud::default();
     let mut records = Vec::new();
+    let projectors: Vec<_> = scene.frames.iter().map(|f| f.camera.projector()).collect();
     for c in &completed_crops {
         let link = &chain.links()[c.completer];
-        let (cloud, rec) = fuse::fuse_completion(
+        let (mut cloud, mut rec) = fuse::fuse_completion(
             &c.window,
             &c.condition.visible,
             &c.completion,
@@ -211,6 +213,24 @@ pub fn run_observed(
             link.name(),
             link.provenance(),
         );
+        if rec.accepted {
+            let v = gate::gate_completion(
+                &cloud,
+                scene,
+                &projectors,
+                opts.gate_min_mean_confidence,
+                opts.gate_max_seen_through_fraction,
+            );
+            rec.mean_confidence = Some(v.mean_confidence);
+            rec.seen_through_fraction = Some(v.seen_through_fraction);
+            if let Some(why) = v.rejected {
+                rec.accepted = false;
+                rec.gated = true;
+                rec.reason = format!("quality gate: {why}");
+                rec.new_points = 0;
+                cloud = PointCloud::default();
+            }
+        }
         generated.append(&cloud);
         records.push(rec);
     }
@@ -224,6 +244,9 @@ pub fn run_observed(
             new_points: 0,
             metric_scale_m: 0.0,
             fit: None,
+            mean_confidence: None,
+            seen_through_fraction: None,
+            gated: false,
             accepted: false,
             reason: format!("declined: {}", d.reasons.join("; ")),
         });
@@ -240,7 +263,7 @@ pub fn run_observed(
                 ..Default::default()
             },
         );
-        generated.append(&extension);
+        generated.append(&extension.with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE));
     }
     let mut points_carved = 0;
     if opts.carve_generated {
@@ -252,7 +275,8 @@ pub fn run_observed(
 
     let t = Instant::now();
     if opts.complete_planes {
-        let fill = planes::complete_planes(scene, &planes::PlaneOptions::default());
+        let fill = planes::complete_planes(scene, &planes::PlaneOptions::default())
+            .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE);
         completed = fuse_generated(&completed, &fill, opts.fusion_voxel_m)?;
     }
     timings.planes_s = t.elapsed().as_secs_f64();
@@ -355,6 +379,7 @@ fn make_report(
         .collect::<BTreeSet<_>>()
         .len();
     let count = |p: Provenance| codes.iter().filter(|&&g| g == p.code()).count();
+    let completions_gated = records.iter().filter(|r| r.gated).count();
     RunReport {
         frames: scene.frames.len(),
         options: opts.clone(),
@@ -371,6 +396,7 @@ fn make_report(
         points_plane_fill: count(Provenance::PlaneFill),
         points_carved,
         crops_declined,
+        completions_gated,
         timings,
         poses: if registration.is_empty() {
             "given"

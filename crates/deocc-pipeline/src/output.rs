@@ -2,7 +2,8 @@
 //!
 //! ```text
 //! OUT/
-//!   completed.ply                 x y z, red green blue, instance (u32), generated (u8 provenance)
+//!   completed.ply                 x y z, red green blue, instance (u32), generated (u8 provenance),
+//!                                 confidence (f32)
 //!   observed.ply                  the visible-only cloud
 //!   instances/instance_NNNN.ply   each completed instance, observed and generated points
 //!   report.json                   the run report (+ the evaluation against ground truth, if any)

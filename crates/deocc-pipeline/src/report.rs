@@ -29,6 +29,12 @@ pub struct CompletionRecord {
     /// fit's.
     pub metric_scale_m: f32,
     pub fit: Option<deocc_geometry::robust::AffineFit>,
+    /// The quality gate's measurements ([`crate::gate`]) of a completion that fused: the mean
+    /// confidence of its points and the share of them the views contradict.
+    pub mean_confidence: Option<f32>,
+    pub seen_through_fraction: Option<f32>,
+    /// Rejected by the quality gate (the reason says which limit).
+    pub gated: bool,
     pub accepted: bool,
     pub reason: String,
 }
@@ -82,6 +88,8 @@ pub struct RunReport {
     pub points_carved: usize,
     /// Crops every completer of the chain declined.
     pub crops_declined: usize,
+    /// Completions the quality gate rejected ([`crate::gate`]; each record says why).
+    pub completions_gated: usize,
     pub timings: StageTimings,
     /// "given" (poses from cameras.json) or "icp" (pose-free input registered frame to frame).
     pub poses: &'static str,

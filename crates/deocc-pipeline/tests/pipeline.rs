@@ -186,12 +186,14 @@ fn plane_fill_lands_on_hidden_ground_truth() {
 }
 
 /// A completer with no weights: every crop candidate pixel joins the object at the object's median
-/// visible depth, in one colour; it declines crops wider than `max_width_m`.
+/// visible depth, in one colour, with probability [`STUB_PROBABILITY`]; it declines crops wider
+/// than `max_width_m`.
 struct Stub {
     max_width_m: f32,
 }
 
 const STUB_COLOUR: [u8; 3] = [1, 2, 3];
+const STUB_PROBABILITY: f32 = 0.7;
 
 impl Completer for Stub {
     fn name(&self) -> &str {
@@ -219,7 +221,13 @@ impl Completer for Stub {
                 let n = c.pixels();
                 let amodal: Vec<bool> = (0..n).map(|p| c.visible[p] || c.prior[p]).collect();
                 CropCompletion {
-                    mask_probability: amodal.iter().map(|&a| a as u8 as f32).collect(),
+                    mask_probability: (0..n)
+                        .map(|p| match (c.visible[p], amodal[p]) {
+                            (true, _) => 1.0,
+                            (false, true) => STUB_PROBABILITY,
+                            (false, false) => 0.0,
+                        })
+                        .collect(),
                     rgb: (0..n).flat_map(|_| STUB_COLOUR).collect(),
                     depth: c.visible_depth.clone(),
                     back_depth: c.visible_depth.iter().map(|d| d + 0.3).collect(),
@@ -275,6 +283,97 @@ fn run_completes_with_a_stub_completer() {
     assert!(r.completions.iter().all(|c| c.completer == "stub"));
     // The observed part is the reconstruction, untouched.
     assert_eq!(gen.iter().filter(|&&g| g == 0).count(), out.observed.len());
+    // Every point carries a confidence: 1 observed; generated, the completer's probability of
+    // its pixel (1 for the back of a visible pixel, the stub's probability for a hidden one).
+    let conf = out.completed.confidence.as_deref().unwrap();
+    for (i, &c) in conf.iter().enumerate() {
+        let ok = if gen[i] == 0 {
+            c == 1.0
+        } else {
+            (STUB_PROBABILITY..=1.0).contains(&c)
+        };
+        assert!(ok, "point {i}: {c} (provenance {})", gen[i]);
+    }
+    assert!(conf
+        .iter()
+        .zip(gen)
+        .any(|(&c, &g)| g != 0 && (c - STUB_PROBABILITY).abs() < 1e-5));
+    // The gate measured every fused completion; what it rejected it says, and adds nothing of.
+    assert_eq!(
+        r.completions_gated,
+        r.completions.iter().filter(|c| c.gated).count()
+    );
+    for c in r.completions.iter().filter(|c| c.mean_confidence.is_some()) {
+        assert!((STUB_PROBABILITY..=1.0).contains(&c.mean_confidence.unwrap()));
+        let x = c.seen_through_fraction.unwrap();
+        assert!((0.0..=1.0).contains(&x));
+        assert_eq!(c.gated, x > 0.5, "{c:?}");
+        assert_eq!(c.accepted, !c.gated);
+    }
+}
+
+/// The quality gate drops whole completions: every one with a hidden pixel when the confidence
+/// limit is 1, and a "completion" made of points in the free space in front of
+/// what the views see; points the views observe agree with a completion.
+#[test]
+fn the_quality_gate_rejects_doubtful_and_contradicted_completions() {
+    use deocc_pipeline::gate::gate_completion;
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let chain = CompleterChain::single(Stub { max_width_m: 100.0 });
+    let strict = PipelineOptions {
+        complete_planes: false,
+        extend_to_support: false,
+        gate_min_mean_confidence: 1.0,
+        gate_max_seen_through_fraction: 1.0,
+        ..Default::default()
+    };
+    let out = deocc_pipeline::run(&scene, &chain, &strict, &Vec::new()).unwrap();
+    let r = &out.report;
+    let doubtful: Vec<_> = r
+        .completions
+        .iter()
+        .filter(|c| c.mean_confidence.is_some_and(|m| m < 1.0))
+        .collect();
+    assert!(!doubtful.is_empty(), "{r:?}");
+    assert!(doubtful.iter().all(|c| c.gated
+        && !c.accepted
+        && c.new_points == 0
+        && c.reason.starts_with("quality gate: mean confidence")));
+    assert_eq!(
+        r.completions_gated,
+        r.completions.iter().filter(|c| c.gated).count()
+    );
+    // Observed surface points agree with the views; the same points pulled 30 cm towards the
+    // first camera float in space it saw through.
+    let projectors: Vec<_> = scene.frames.iter().map(|f| f.camera.projector()).collect();
+    let seen = out.observed.filter(|i| i % 50 == 0);
+    let v = gate_completion(&seen, &scene, &projectors, 0.0, 0.5);
+    assert!(v.seen_through_fraction < 0.1, "{v:?}");
+    assert!(v.rejected.is_none());
+    assert_eq!(v.mean_confidence, 1.0);
+    let eye = scene.frames[0].camera.world_from_camera.translation.vector;
+    let mut floating = seen.clone();
+    for p in &mut floating.positions {
+        let towards = (eye - p.coords).normalize();
+        *p += towards * 0.3;
+    }
+    let v = gate_completion(&floating, &scene, &projectors, 0.0, 0.5);
+    assert!(v.seen_through_fraction > 0.6, "{v:?}");
+    assert!(v.rejected.unwrap().contains("seen through"));
+    // What the default pipeline generated and kept is hidden in every view.
+    let default = PipelineOptions {
+        complete_planes: false,
+        extend_to_support: false,
+        ..Default::default()
+    };
+    let out = deocc_pipeline::run(&scene, &chain, &default, &Vec::new()).unwrap();
+    let gen = out.completed.generated.as_deref().unwrap();
+    let kept = out.completed.filter(|i| gen[i] != 0);
+    assert!(!kept.is_empty());
+    let v = gate_completion(&kept, &scene, &projectors, 0.0, 0.5);
+    assert!(v.seen_through_fraction < 0.05, "{v:?}");
+    assert!(v.rejected.is_none());
 }
 
 /// Crops a completer declines go to the next one in the chain; crops every completer declines are
@@ -357,6 +456,14 @@ fn options_from_json_are_checked() {
         (r#"{"steps": 0}"#, "steps"),
         (r#"{"rho": 1e30}"#, "rho"),
         (r#"{"fusion_voxel_m": -1}"#, "fusion_voxel_m"),
+        (
+            r#"{"gate_min_mean_confidence": 1.5}"#,
+            "gate_min_mean_confidence",
+        ),
+        (
+            r#"{"gate_max_seen_through_fraction": -0.1}"#,
+            "gate_max_seen_through_fraction",
+        ),
     ] {
         std::fs::write(&path, text).unwrap();
         let e = PipelineOptions::from_json_file(&path)

@@ -51,6 +51,12 @@ class Deocc(unittest.TestCase):
         self.assertTrue(np.array_equal(res["colors"], cli["colors"]))
         self.assertTrue(np.array_equal(res["instance"], cli["instance"]))
         self.assertTrue(np.array_equal(res["provenance"], cli["provenance"]))
+        self.assertTrue(np.array_equal(res["confidence"], cli["confidence"]))
+        # Observed points are certain; generated ones carry the completer's probability.
+        observed = res["provenance"] == 0
+        self.assertTrue(np.all(res["confidence"][observed] == 1.0))
+        self.assertTrue(np.all((res["confidence"] >= 0.0) & (res["confidence"] <= 1.0)))
+        self.assertLess(res["confidence"][~observed].mean(), 1.0)
         self.assertEqual(res["report"]["frames"], len(self.frames))
 
     def test_two_threads_overlap_and_python_runs_meanwhile(self):

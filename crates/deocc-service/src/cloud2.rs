@@ -6,11 +6,12 @@
 //! | x, y, z    | 0-11   | FLOAT32 | world frame, metres                                  |
 //! | rgb        | 12     | FLOAT32 | packed 0x00RRGGBB (the PCL convention)               |
 //! | instance   | 16     | UINT32  | instance id, 0 = background                          |
-//! | confidence | 20     | FLOAT32 | 1 observed; generated points: see [`confidence`]     |
+//! | confidence | 20     | FLOAT32 | 1 observed; generated: the cloud's own, see [`confidence`] |
 //! | provenance | 24     | UINT8   | 0 observed, 1 model, 2 plane fill, 3 rules           |
 //!
 //! Decoding accepts any layout with FLOAT32 x, y, z (and optionally rgb, a UINT32 or UINT16
-//! instance and a UINT8 provenance) at any offsets, as other ROS nodes write them.
+//! instance, a UINT8 provenance and a FLOAT32 confidence) at any offsets, as other ROS nodes
+//! write them.
 
 use deocc_geometry::{PointCloud, Provenance};
 use nalgebra::Point3;
@@ -26,9 +27,9 @@ const UINT32: u32 = 6;
 const FLOAT32: u32 = 7;
 const FLOAT64: u32 = 8;
 
-/// The confidence a point of provenance `code` carries: 1 for observed points; generated points
-/// carry the prior that their provenance puts them on a true surface, 0.5, until GL-DoT's
-/// per-point confidence is part of the cloud.
+/// The confidence a point of provenance `code` carries when its cloud has none of its own: 1 for
+/// observed points, 0.5 for generated ones. Clouds from the pipeline carry their own (the
+/// completer's probability that the pixel belongs to the object).
 pub fn confidence(code: u8) -> f32 {
     if code == Provenance::Observed.code() {
         1.0
@@ -69,6 +70,10 @@ pub fn encode(cloud: &PointCloud) -> PointCloud2 {
         let c = cloud.colors.as_ref().map_or([128; 3], |c| c[i]);
         let id = cloud.instance.as_ref().map_or(0, |v| v[i]);
         let g = cloud.generated.as_ref().map_or(0, |v| v[i]);
+        let k = cloud
+            .confidence
+            .as_ref()
+            .map_or_else(|| confidence(g), |v| v[i]);
         let rgb = (u32::from(c[0]) << 16) | (u32::from(c[1]) << 8) | u32::from(c[2]);
         let mut point = [0u8; POINT_STEP as usize];
         point[0..4].copy_from_slice(&p.x.to_le_bytes());
@@ -76,7 +81,7 @@ pub fn encode(cloud: &PointCloud) -> PointCloud2 {
         point[8..12].copy_from_slice(&p.z.to_le_bytes());
         point[12..16].copy_from_slice(&rgb.to_le_bytes());
         point[16..20].copy_from_slice(&id.to_le_bytes());
-        point[20..24].copy_from_slice(&confidence(g).to_le_bytes());
+        point[20..24].copy_from_slice(&k.to_le_bytes());
         point[24] = g;
         data.extend_from_slice(&point);
     }
@@ -175,12 +180,14 @@ pub fn decode(msg: &PointCloud2, what: &str) -> Result<PointCloud, FieldError> {
     let rgb = find("rgb", &[FLOAT32, UINT32])?;
     let instance = find("instance", &[UINT32, UINT16])?;
     let provenance = find("provenance", &[UINT8])?;
+    let conf = find("confidence", &[FLOAT32])?;
     // One pass over the points, each a `step`-byte chunk.
     let rd4 = |p: &[u8], o: usize| [p[o], p[o + 1], p[o + 2], p[o + 3]];
     let mut positions = Vec::with_capacity(n);
     let mut colors = rgb.map(|_| Vec::with_capacity(n));
     let mut ids = instance.map(|_| Vec::with_capacity(n));
     let mut generated = provenance.map(|_| Vec::with_capacity(n));
+    let mut confidence = conf.map(|_| Vec::with_capacity(n));
     for (i, p) in msg.data.chunks_exact(step.max(1)).take(n).enumerate() {
         let q = Point3::new(
             f32::from_le_bytes(rd4(p, xyz[0])),
@@ -208,6 +215,16 @@ pub fn decode(msg: &PointCloud2, what: &str) -> Result<PointCloud, FieldError> {
         if let (Some(g), Some((o, _))) = (generated.as_mut(), provenance) {
             g.push(p[o]);
         }
+        if let (Some(k), Some((o, _))) = (confidence.as_mut(), conf) {
+            let v = f32::from_le_bytes(rd4(p, o));
+            if !(0.0..=1.0).contains(&v) {
+                return Err(bad(
+                    &format!("{what}.data"),
+                    format!("point {i} has confidence {v}, outside [0, 1]"),
+                ));
+            }
+            k.push(v);
+        }
     }
     let instance = ids;
     Ok(PointCloud {
@@ -215,6 +232,7 @@ pub fn decode(msg: &PointCloud2, what: &str) -> Result<PointCloud, FieldError> {
         colors,
         instance,
         generated,
+        confidence,
         ..Default::default()
     })
 }
@@ -231,6 +249,7 @@ mod tests {
             colors: Some((0..n).map(|i| [i as u8, (i * 7) as u8, 255]).collect()),
             instance: Some((0..n).map(|i| (i % 5) as u32).collect()),
             generated: Some((0..n).map(|i| (i % 4) as u8).collect()),
+            confidence: Some((0..n).map(|i| 1.0 - (i % 4) as f32 * 0.25).collect()),
             ..Default::default()
         }
     }
@@ -246,6 +265,7 @@ mod tests {
         assert_eq!(back.colors, c.colors);
         assert_eq!(back.instance, c.instance);
         assert_eq!(back.generated, c.generated);
+        assert_eq!(back.confidence, c.confidence);
         // The packed colour is where PCL reads it.
         let rgb = u32::from_le_bytes(msg.data[28 + 12..28 + 16].try_into().unwrap());
         assert_eq!(rgb, (1 << 16) | (7 << 8) | 255);
