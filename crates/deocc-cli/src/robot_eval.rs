@@ -17,15 +17,16 @@ pub struct GraspArgs {
     scenes: usize,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
-    /// Grasp planner settings (JSON of GraspOptions: gripper geometry, seeds, friction, ...).
+    /// Grasp planner settings (JSON of GraspOptions: gripper geometry, seeds, friction, ...);
+    /// `--options` is the pipeline's.
     #[arg(long)]
-    options: Option<PathBuf>,
+    grasp_options: Option<PathBuf>,
 }
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let chains = robot_chains(a.weights.as_ref())?;
     let opts = a.pipeline.options()?;
-    let options = crate::robot::grasp_options(a.options.as_deref())?;
+    let options = crate::robot::grasp_options(a.grasp_options.as_deref())?;
     let n = a.scenes.min(deocc_synth::dataset::pickup_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
     let report =

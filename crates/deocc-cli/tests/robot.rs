@@ -123,3 +123,26 @@ fn grasp_and_place_answer_with_json_and_pictures_and_refuse_bad_requests() {
         "{err}"
     );
 }
+
+/// `eval grasp` takes the pipeline's options (`--options`) and the planner's (`--grasp-options`)
+/// under two names, and a missing file of either is named before anything runs.
+#[test]
+fn eval_grasp_names_each_options_file() {
+    let dir = tempfile::tempdir().unwrap();
+    for (flag, name) in [
+        ("--options", "no_pipeline.json"),
+        ("--grasp-options", "no_planner.json"),
+    ] {
+        let out = deocc()
+            .args(["eval", "grasp", "--scenes", "1", "--json"])
+            .arg(dir.path().join("grasp.json"))
+            .arg(flag)
+            .arg(dir.path().join(name))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{flag}: {err}");
+        assert!(err.contains(name), "{flag}: {err}");
+        assert!(!dir.path().join("grasp.json").exists());
+    }
+}

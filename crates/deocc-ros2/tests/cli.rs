@@ -18,7 +18,22 @@ fn run(args: &[&str]) -> (bool, String) {
 
 #[test]
 fn bad_settings_and_input_are_named() {
+    let dir = std::env::temp_dir().join(format!("deocc-ros2-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let empty = dir.join("empty-token");
+    std::fs::write(&empty, "  \n").unwrap();
+    let empty = empty.to_str().unwrap();
     for (args, want) in [
+        (
+            &[
+                "bridge",
+                "--service",
+                "http://127.0.0.1:9",
+                "--token-file",
+                empty,
+            ][..],
+            "the token is empty",
+        ),
         (&["bridge", "--max-views", "0"][..], "--max-views"),
         (&["bridge", "--slop-ms=-1"][..], "--slop-ms"),
         (
@@ -37,4 +52,5 @@ fn bad_settings_and_input_are_named() {
             "{args:?}: {err}"
         );
     }
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -171,12 +171,16 @@ async fn bridge(a: BridgeArgs) -> Result<()> {
     let backend = match &a.service {
         Some(url) => {
             let token = match &a.token_file {
-                Some(p) => Some(
-                    std::fs::read_to_string(p)
+                Some(p) => {
+                    let t = std::fs::read_to_string(p)
                         .with_context(|| format!("--token-file {}", p.display()))?
                         .trim()
-                        .to_string(),
-                ),
+                        .to_string();
+                    if t.is_empty() {
+                        anyhow::bail!("--token-file {}: the token is empty", p.display());
+                    }
+                    Some(t)
+                }
                 None => None,
             };
             let mut client = deocc_service::client::Client::connect(url, token)
