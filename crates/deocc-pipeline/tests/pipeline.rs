@@ -256,6 +256,8 @@ fn run_completes_with_a_stub_completer() {
     let chain = CompleterChain::single(Stub { max_width_m: 100.0 });
     let opts = PipelineOptions {
         complete_planes: false,
+        gate_min_mean_confidence: 0.5,
+        gate_max_seen_through_fraction: 0.5,
         ..Default::default()
     };
     let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
@@ -298,7 +300,8 @@ fn run_completes_with_a_stub_completer() {
         .iter()
         .zip(gen)
         .any(|(&c, &g)| g != 0 && (c - STUB_PROBABILITY).abs() < 1e-5));
-    // The gate measured every fused completion; what it rejected it says, and adds nothing of.
+    // The gate (limits 0.5, 0.5) measured every fused completion; what it rejected it says, and
+    // adds nothing of.
     assert_eq!(
         r.completions_gated,
         r.completions.iter().filter(|c| c.gated).count()
@@ -361,7 +364,11 @@ fn the_quality_gate_rejects_doubtful_and_contradicted_completions() {
     let v = gate_completion(&floating, &scene, &projectors, 0.0, 0.5);
     assert!(v.seen_through_fraction > 0.6, "{v:?}");
     assert!(v.rejected.unwrap().contains("seen through"));
-    // What the default pipeline generated and kept is hidden in every view.
+    // What the pipeline generated and kept is hidden in every view (the default gate is off).
+    assert_eq!(
+        PipelineOptions::default().gate_max_seen_through_fraction,
+        1.0
+    );
     let default = PipelineOptions {
         complete_planes: false,
         extend_to_support: false,
