@@ -25,7 +25,7 @@ pub struct GateVerdict {
 }
 
 /// Measures one completion's points and judges them against the two limits: rejected when the
-/// mean confidence is below `min_mean_confidence` or the contradicted share above
+/// mean confidence is below `min_mean_confidence` or the seen-through share above
 /// `max_seen_through_fraction`.
 pub fn gate_completion(
     cloud: &PointCloud,
@@ -45,12 +45,12 @@ pub fn gate_completion(
     let mean_confidence = cloud.confidence.as_ref().map_or(1.0, |c| {
         (c.iter().map(|&x| f64::from(x)).sum::<f64>() / n as f64) as f32
     });
-    let contradicted = cloud
+    let seen_through = cloud
         .positions
         .par_iter()
         .filter(|p| evidence(p, scene, projectors) == Evidence::SeenThrough)
         .count();
-    let seen_through_fraction = contradicted as f32 / n as f32;
+    let seen_through_fraction = seen_through as f32 / n as f32;
     let rejected = if mean_confidence < min_mean_confidence {
         Some(format!(
             "mean confidence {mean_confidence:.2} below {min_mean_confidence:.2}"
