@@ -54,6 +54,9 @@ pub struct SceneGrasps {
     pub collisions_with_target: usize,
     pub collisions_with_table: usize,
     pub empty: usize,
+    /// The revolve stage replaced the target's completion by a surface of revolution
+    /// (`deocc_pipeline::revolve`; false for the observed and ground-truth clouds).
+    pub target_revolved: bool,
     /// Planning and evaluation of this cloud.
     pub seconds: f64,
 }
@@ -81,6 +84,8 @@ pub struct GraspRow {
     pub top1_at_04_vs_observed_heavy: Comparison,
     /// This row's top-1 success at mu 0.4 over the ground-truth cloud's (heavy scenes).
     pub top1_at_04_over_ground_truth_heavy: f64,
+    /// Scenes whose target the revolve stage completed (all, heavy).
+    pub target_revolved: [usize; 2],
     pub mean_seconds_per_scene: f64,
     pub max_seconds_per_scene: f64,
 }
@@ -173,6 +178,7 @@ pub fn score_cloud(
                 .iter()
                 .filter(|o| matches!(o, GraspOutcome::Empty))
                 .count(),
+            target_revolved: false,
             seconds: t.elapsed().as_secs_f64(),
         },
         holding,
@@ -275,7 +281,7 @@ pub fn grasp_benchmark(
             let ids = cloud.instance.clone().ok_or_else(|| {
                 EvalError::Data("the pipeline's cloud has no instance ids".into())
             })?;
-            let (row, _) = score_cloud(
+            let (mut row, _) = score_cloud(
                 table,
                 &planner,
                 options,
@@ -286,6 +292,10 @@ pub fn grasp_benchmark(
                 Some(&true_contacts),
                 &target_gt,
             )?;
+            row.target_revolved = k > 0
+                && out.report.instances.iter().any(|i| {
+                    i.instance_id == target && i.revolve.as_ref().is_some_and(|r| r.fit.is_some())
+                });
             rows.push(row);
         }
         rows.push({
@@ -337,6 +347,10 @@ pub fn grasp_benchmark(
                 top1_at_04_vs_observed: vs(&|_| true),
                 top1_at_04_vs_observed_heavy: vs(&heavy_of),
                 top1_at_04_over_ground_truth_heavy: heavy_rate / gt_heavy,
+                target_revolved: [
+                    all.iter().filter(|r| r.target_revolved).count(),
+                    heavy.iter().filter(|r| r.target_revolved).count(),
+                ],
                 mean_seconds_per_scene: crate::stats::mean(secs.iter().copied()),
                 max_seconds_per_scene: secs.iter().copied().fold(0.0, f64::max),
             }

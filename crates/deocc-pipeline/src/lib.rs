@@ -14,6 +14,7 @@
 //! | crops and completion | [`crops`], [`complete`] | [`complete::complete_instances`] |
 //! | alignment and fusion | [`fuse`] | [`fuse::fuse_completion`] |
 //! | support: hidden bottoms down to the surface below | [`support`] | [`support::extend_to_support`] |
+//! | revolve: upright solids of revolution completed on their axis | [`revolve`] | [`revolve::revolve_instances`] |
 //! | carving | [`carve`] | [`carve::keep_hidden`] |
 //! | planes | [`planes`] | [`planes::complete_planes`] |
 //! | output folder | [`output`] | [`output::write_output`] |
@@ -40,6 +41,7 @@ pub mod record;
 pub mod registration;
 pub mod render;
 pub mod report;
+pub mod revolve;
 pub mod segment;
 pub mod stats;
 pub mod support;
@@ -265,6 +267,32 @@ pub fn run_observed(
         );
         generated.append(&extension.with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE));
     }
+    let mut revolved = Vec::new();
+    if opts.revolve_upright && scene.posed && registration.is_empty() {
+        // Only what a completer of the chain completed: an empty chain means no completion.
+        let ids: BTreeSet<u16> = records
+            .iter()
+            .filter(|r| r.accepted)
+            .map(|r| r.instance_id)
+            .collect();
+        (generated, revolved) = revolve::revolve_instances(
+            &observed,
+            &generated,
+            &ids,
+            &scene
+                .frames
+                .iter()
+                .map(|f| f.camera.center())
+                .collect::<Vec<_>>(),
+            &revolve::RevolveOptions {
+                up: opts.up.into(),
+                rim_inset_m: opts.observed_voxel_m as f32 / 4.0,
+                // A rim through voxel centroids wanders by up to half a voxel.
+                max_top_residual_m: (0.6 * opts.observed_voxel_m as f32).max(0.002),
+                ..Default::default()
+            },
+        );
+    }
     let mut points_carved = 0;
     if opts.carve_generated {
         (generated, points_carved) = carve::keep_hidden(&generated, scene);
@@ -296,6 +324,7 @@ pub fn run_observed(
         declined.len(),
         timings,
         registration,
+        &revolved,
     );
     Ok(PipelineOutput {
         observed,
@@ -344,6 +373,7 @@ fn make_report(
     crops_declined: usize,
     timings: StageTimings,
     registration: &Registration,
+    revolved: &[revolve::RevolveRecord],
 ) -> RunReport {
     let codes = completed.generated.as_deref().unwrap_or(&[]);
     let ids = completed.instance.as_deref().unwrap_or(&[]);
@@ -370,6 +400,7 @@ fn make_report(
                 .zip(ids)
                 .filter(|(&g, &i)| g > 0 && i == id as u32)
                 .count(),
+            revolve: revolved.iter().find(|r| r.instance_id == id).cloned(),
         })
         .collect();
     let objects_completed = records

@@ -31,6 +31,9 @@ pub struct PipelineOptions {
     /// Extend completed objects whose bottom is hidden down to the surface they stand on
     /// ([`crate::support`]; posed scenes only).
     pub extend_to_support: bool,
+    /// Replace the completion of an object whose observed side is an upright solid of
+    /// revolution (a can, a bottle) by that surface ([`crate::revolve`]; posed scenes only).
+    pub revolve_upright: bool,
     /// Gravity's opposite in the scene's world frame (for the support stage).
     pub up: [f32; 3],
     /// Masks smaller than this (pixels) are not completed.
@@ -76,6 +79,7 @@ impl Default for PipelineOptions {
             seed: 0,
             complete_unoccluded: false,
             extend_to_support: true,
+            revolve_upright: true,
             up: [0.0, 0.0, 1.0],
             min_visible_px: 200,
             complete_planes: true,

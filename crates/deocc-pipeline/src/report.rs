@@ -13,6 +13,8 @@ pub struct InstanceReport {
     pub occluded_in_views: Vec<usize>,
     pub selected_views: Vec<usize>,
     pub generated_points: usize,
+    /// What the revolve stage made of it ([`crate::revolve`]); `None` when the stage did not run.
+    pub revolve: Option<crate::revolve::RevolveRecord>,
 }
 
 /// One (instance, view) completion: who completed it, how its depth fitted, what it added.
