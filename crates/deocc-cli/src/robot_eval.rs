@@ -15,6 +15,10 @@ pub struct GraspArgs {
     /// Number of pickup-v1 scenes (the first N of its 120).
     #[arg(long, default_value_t = 120)]
     scenes: usize,
+    /// Score pickup-v1-like scenes of other seeds (9,250,000 on), not the test scenes: where
+    /// the planner's and the revolve stage's limits are chosen.
+    #[arg(long)]
+    tuning: bool,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
     /// Grasp planner settings (JSON of GraspOptions: gripper geometry, seeds, friction, ...);
@@ -27,10 +31,17 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     let chains = robot_chains(a.weights.as_ref())?;
     let opts = a.pipeline.options()?;
     let options = crate::robot::grasp_options(a.grasp_options.as_deref())?;
-    let n = a.scenes.min(deocc_synth::dataset::pickup_v1().seeds.len());
+    let mut preset = deocc_synth::dataset::pickup_v1();
+    if a.tuning {
+        preset.name = format!("{} tuning scenes", preset.name);
+        preset.seeds = (9_250_000..9_250_000 + a.scenes as u64).collect();
+    }
+    let n = a.scenes.min(preset.seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
     let report =
-        deocc_eval::grasp::grasp_benchmark(&chains, &opts, &options, n, &mut || pb.inc(1))?;
+        deocc_eval::grasp::grasp_benchmark(&chains, &opts, &options, &preset, n, &mut || {
+            pb.inc(1)
+        })?;
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())

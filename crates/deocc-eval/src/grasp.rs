@@ -200,18 +200,19 @@ fn subset(rows: &[&SceneGrasps]) -> Subset {
     }
 }
 
-/// `deocc eval grasp` on the first `scenes` of pickup-v1 with each named chain.
+/// `deocc eval grasp` on the first `scenes` of `preset` (pickup-v1, or its tuning seeds) with each
+/// named chain.
 pub fn grasp_benchmark(
     chains: &[(String, CompleterChain)],
     opts: &deocc_pipeline::PipelineOptions,
     options: &GraspOptions,
+    preset: &deocc_synth::dataset::Preset,
     scenes: usize,
     tick: &mut dyn FnMut(),
 ) -> Result<GraspReport, EvalError> {
     options
         .validate()
         .map_err(|e| EvalError::Data(e.to_string()))?;
-    let preset = deocc_synth::dataset::pickup_v1();
     let n = scenes.min(preset.seeds.len());
     let planner = AntipodalPlanner {
         options: options.clone(),
@@ -357,7 +358,7 @@ pub fn grasp_benchmark(
         })
         .collect();
     Ok(GraspReport {
-        benchmark: preset.name,
+        benchmark: preset.name.clone(),
         scenes: n,
         heavy_scenes: per[0].iter().filter(|r| heavy_of(r)).count(),
         planner: planner.name().to_string(),

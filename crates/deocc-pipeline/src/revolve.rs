@@ -26,9 +26,13 @@
 //! An accepted instance's generated points (the completer's, the support stage's) are replaced by
 //! the fitted surface, sampled every `sample_m` from the instance's lowest point (the support
 //! stage has brought it down to what it stands on) to its highest observed point; a height
-//! without observed side points takes the radius of the nearest slice that has them. The samples
+//! without observed side points takes the radius of the nearest slice that has them, except below
+//! a lowest slice narrower than `min_top_radius_m` (a bottle's neck: it says nothing of the body),
+//! where the completer's points at that height, about the fitted axis, may widen it. The samples
 //! carry the rules provenance, the colour of the nearest observed point and confidence
 //! [`REVOLVE_CONFIDENCE`]; the carving stage then keeps only those every view agrees are hidden.
+//! Other objects' generated points more than [`INSIDE_M`] inside an accepted solid are dropped
+//! (an occluder's guessed far side reaching into the can behind it).
 //! Posed scenes only (it needs gravity).
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -37,6 +41,9 @@ use deocc_geometry::normals::estimate_normals;
 use deocc_geometry::{KdIndex, PointCloud, Provenance};
 use nalgebra::{Point3, Rotation3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
+
+/// How far inside an accepted solid another object's generated point must lie to be dropped.
+pub const INSIDE_M: f32 = 0.003;
 
 /// Confidence of a point on an accepted surface of revolution.
 pub const REVOLVE_CONFIDENCE: f32 = 0.9;
@@ -75,7 +82,7 @@ impl Default for RevolveOptions {
             up: Vector3::z(),
             slice_m: 0.01,
             min_points: 40,
-            max_rms_m: 0.0015,
+            max_rms_m: 0.002,
             max_rms_fraction: 0.05,
             max_median_angle_deg: 8.0,
             max_p80_angle_deg: 15.0,
@@ -452,6 +459,8 @@ pub fn revolve_instances(
     }
     let gen_inst = generated.instance.as_deref().unwrap_or(&[]);
     let mut replaced: BTreeSet<u32> = BTreeSet::new();
+    // Each accepted solid: its instance, axis and (height, radius) rows bottom up.
+    let mut solids: Vec<(u32, Vector2<f32>, Vec<(f32, f32)>)> = Vec::new();
     let mut surface = PointCloud::default();
     for &id in ids {
         let idx = own.get(&id).map(Vec::as_slice).unwrap_or(&[]);
@@ -467,16 +476,41 @@ pub fn revolve_instances(
                 continue;
             }
         };
-        let gen_z = generated
+        let gen_pts: Vec<Point3<f32>> = generated
             .positions
             .iter()
             .zip(gen_inst)
             .filter(|(_, &g)| g == id as u32)
-            .map(|(p, _)| (level * p).z);
+            .map(|(p, _)| level * p)
+            .collect();
         let obs_z = pts.iter().map(|p| p.z);
-        let bottom = obs_z.clone().chain(gen_z).fold(f32::MAX, f32::min);
+        let bottom = obs_z
+            .clone()
+            .chain(gen_pts.iter().map(|p| p.z))
+            .fold(f32::MAX, f32::min);
         let top = obs_z.fold(f32::MIN, f32::max);
-        let samples = sample_surface(&fit, bottom, top, o);
+        // A narrow lowest slice (a bottle's neck) says nothing of the body below it: there the
+        // completer's points, about the fitted axis, may widen the surface.
+        let lowest = fit.radii[0];
+        let neck = !fit.from_top && lowest.1 < o.min_top_radius_m;
+        let axis = Vector2::new(fit.axis[0], fit.axis[1]);
+        let below = |z: f32| -> Option<f32> {
+            if !neck || z >= lowest.0 {
+                return None;
+            }
+            let mut d: Vec<f32> = gen_pts
+                .iter()
+                .filter(|p| (p.z - z).abs() <= o.slice_m / 2.0)
+                .map(|p| (Vector2::new(p.x, p.y) - axis).norm())
+                .collect();
+            if d.len() < 8 {
+                return None;
+            }
+            d.sort_by(f32::total_cmp);
+            Some(d[d.len() / 2].min(o.max_radius_m))
+        };
+        let (samples, rows) = sample_surface(&fit, bottom, top, &below, o);
+        solids.push((id as u32, axis, rows));
         let colors = nearest_colors(&pts, idx, observed, &samples);
         let n = samples.len();
         surface.append(&PointCloud {
@@ -509,8 +543,26 @@ pub fn revolve_instances(
     if replaced.is_empty() {
         return (generated.clone(), records);
     }
+    // Another object's generated points inside an accepted solid (more than `INSIDE_M` inside
+    // its surface) are impossible: the solid was seen. They go too (an occluder's guessed far
+    // side reaching into the can behind it).
+    let inside = |i: usize| -> bool {
+        let p = level * generated.positions[i];
+        let own = gen_inst.get(i).copied();
+        solids.iter().any(|(id, axis, rows)| {
+            if Some(*id) == own || rows.is_empty() {
+                return false;
+            }
+            let (lo, hi) = (rows[0].0, rows[rows.len() - 1].0);
+            if p.z < lo || p.z > hi {
+                return false;
+            }
+            let k = (((p.z - lo) / o.sample_m).round() as usize).min(rows.len() - 1);
+            (Vector2::new(p.x, p.y) - axis).norm() < rows[k].1 - INSIDE_M
+        })
+    };
     let keep: Vec<usize> = (0..generated.len())
-        .filter(|&i| !gen_inst.get(i).is_some_and(|g| replaced.contains(g)))
+        .filter(|&i| !gen_inst.get(i).is_some_and(|g| replaced.contains(g)) && !inside(i))
         .collect();
     let mut out = generated.select(&keep);
     out.append(&surface);
@@ -518,15 +570,26 @@ pub fn revolve_instances(
 }
 
 /// Points on the fitted surface from `bottom` to `top`, every `sample_m` in height and around.
-fn sample_surface(fit: &Revolution, bottom: f32, top: f32, o: &RevolveOptions) -> Vec<Point3<f32>> {
+/// Below the observed slices `below(z)`, when it answers, widens the radius. Also returns each
+/// row's (height, radius).
+fn sample_surface(
+    fit: &Revolution,
+    bottom: f32,
+    top: f32,
+    below: &dyn Fn(f32) -> Option<f32>,
+    o: &RevolveOptions,
+) -> (Vec<Point3<f32>>, Vec<(f32, f32)>) {
     let mut out = Vec::new();
+    let mut radii = Vec::new();
     if top.partial_cmp(&bottom) != Some(std::cmp::Ordering::Greater) {
-        return out;
+        return (out, radii);
     }
     let rows = ((top - bottom) / o.sample_m).ceil() as usize + 1;
     for k in 0..rows {
         let z = (bottom + k as f32 * o.sample_m).min(top);
         let r = fit.radius_at(z, o.slice_m);
+        let r = below(z).map_or(r, |b| b.max(r));
+        radii.push((z, r));
         let around = ((std::f32::consts::TAU * r / o.sample_m).ceil() as usize).max(8);
         for j in 0..around {
             let t = j as f32 * std::f32::consts::TAU / around as f32;
@@ -537,7 +600,7 @@ fn sample_surface(fit: &Revolution, bottom: f32, top: f32, o: &RevolveOptions) -
             ));
         }
     }
-    out
+    (out, radii)
 }
 
 /// The colour of the nearest observed point of the instance (levelled `pts`, indices `idx`
@@ -676,6 +739,48 @@ mod tests {
         assert!(fit_revolution(&pts, &[], &RevolveOptions::default()).is_err());
     }
 
+    /// A bottle of which only the neck shows: the neck is revolved as seen, and below it the
+    /// completer's wider body, about the fitted axis, sets the radius.
+    #[test]
+    fn below_a_neck_the_completers_body_sets_the_radius() {
+        let neck = side((0.0, 0.0), |_| 0.014, 0.06, -160.0, -20.0);
+        let mut observed = PointCloud::from_positions(
+            neck.iter()
+                .map(|p| Point3::new(p.x, p.y, p.z + 0.1))
+                .collect(),
+        );
+        observed.instance = Some(vec![1; observed.len()]);
+        // The completer's body: 3 cm, 1 to 9 cm above the table (at 0.7 m).
+        let body = side((0.0, 0.0), |_| 0.03, 0.08, -180.0, 180.0);
+        let mut generated = PointCloud::from_positions(
+            body.iter()
+                .map(|p| Point3::new(p.x, p.y, p.z + 0.01))
+                .collect(),
+        );
+        generated.instance = Some(vec![1; generated.len()]);
+        generated.generated = Some(vec![Provenance::Model.code(); generated.len()]);
+        let (out, records) = revolve_instances(
+            &observed,
+            &generated,
+            &[1].into(),
+            &[],
+            &RevolveOptions::default(),
+        );
+        assert!(records[0].fit.is_some(), "{records:?}");
+        let radius_near = |z: f32| {
+            let d: Vec<f32> = out
+                .positions
+                .iter()
+                .filter(|p| (p.z - z).abs() < 0.003)
+                .map(|p| (p.x * p.x + p.y * p.y).sqrt())
+                .collect();
+            assert!(!d.is_empty(), "nothing at {z}");
+            d.iter().sum::<f32>() / d.len() as f32
+        };
+        assert!((radius_near(0.75) - 0.03).abs() < 0.003);
+        assert!((radius_near(0.83) - 0.014).abs() < 0.002);
+    }
+
     #[test]
     fn a_short_arc_is_refused() {
         let pts = side((0.0, 0.0), |_| 0.05, 0.1, -100.0, -80.0);
@@ -711,10 +816,12 @@ mod tests {
         let mut wrong = side((0.3, 0.0), |_| 0.045, 0.1, 20.0, 160.0);
         let n_wrong = wrong.len();
         wrong.extend((0..50).map(|j| Point3::new(-0.3 + j as f32 * 0.002, 0.02, 0.75)));
+        // The box's guessed far side reaching into the can: impossible once the can is fitted.
+        wrong.extend((0..5).map(|j| Point3::new(0.29 + j as f32 * 0.004, 0.0, 0.75)));
         let mut generated = PointCloud::from_positions(wrong);
         generated.instance = Some(
             std::iter::repeat_n(1, n_wrong)
-                .chain(std::iter::repeat_n(2, 50))
+                .chain(std::iter::repeat_n(2, 55))
                 .collect(),
         );
         generated.generated = Some(vec![Provenance::Model.code(); generated.len()]);
@@ -736,7 +843,8 @@ mod tests {
             let r = ((p.x - 0.3).powi(2) + p.y.powi(2)).sqrt();
             assert!((r - 0.03).abs() < 0.002, "a can point at radius {r}");
         }
-        // The back (y > 0) is there, and the box's generated points are untouched.
+        // The back (y > 0) is there, and the box's generated points are untouched but for those
+        // inside the can.
         assert!(can.iter().any(|p| p.y > 0.025));
         assert_eq!(inst.iter().filter(|&&i| i == 2).count(), 50);
         assert!(out
