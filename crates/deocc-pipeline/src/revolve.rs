@@ -131,6 +131,9 @@ impl Revolution {
     }
 }
 
+/// An accepted solid while the stage runs: its instance, axis and (height, radius) rows bottom up.
+type Solid = (u32, Vector2<f32>, Vec<(f32, f32)>);
+
 /// What the stage made of one instance, for the run report.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RevolveRecord {
@@ -459,8 +462,7 @@ pub fn revolve_instances(
     }
     let gen_inst = generated.instance.as_deref().unwrap_or(&[]);
     let mut replaced: BTreeSet<u32> = BTreeSet::new();
-    // Each accepted solid: its instance, axis and (height, radius) rows bottom up.
-    let mut solids: Vec<(u32, Vector2<f32>, Vec<(f32, f32)>)> = Vec::new();
+    let mut solids: Vec<Solid> = Vec::new();
     let mut surface = PointCloud::default();
     for &id in ids {
         let idx = own.get(&id).map(Vec::as_slice).unwrap_or(&[]);
