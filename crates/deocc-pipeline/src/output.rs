@@ -7,7 +7,8 @@
 //!   observed.ply                  the visible-only cloud
 //!   instances/instance_NNNN.ply   each completed instance, observed and generated points
 //!   report.json                   the run report (+ the evaluation against ground truth, if any)
-//!   render_input_view.png         before / after from the first view, generated points in magenta
+//!   render_input_view.png         before / after from the first view, completed object points in
+//!                                 magenta, plane fill tinted magenta
 //!   render_novel_view.png         the same from higher up and to the side
 //!   render_occluders_removed.png  before / after from the first view without the objects that
 //!                                 hid the completed ones (when there are any)
