@@ -107,7 +107,7 @@ pub struct Revolution {
     /// (slice bottom z, radius) of each slice with observed side points, bottom up.
     pub radii: Vec<(f32, f32)>,
     /// The 80th percentile of the side points' distance to the surface.
-    pub rms_m: f32,
+    pub residual_m: f32,
     pub median_angle_deg: f32,
     pub p80_angle_deg: f32,
     pub arc_deg: f32,
@@ -276,8 +276,7 @@ pub fn fit_revolution(
         .enumerate()
         .map(|(i, q)| ((q - c).norm() - r_of(slices[i])).abs())
         .collect();
-    abs_res.sort_by(f32::total_cmp);
-    let rms = abs_res[((abs_res.len() - 1) as f32 * 0.8).round() as usize];
+    let rms = percentile(&mut abs_res, 0.8);
     let mut angles: Vec<f32> = xy
         .iter()
         .zip(&side)
@@ -286,16 +285,8 @@ pub fn fit_revolution(
             n.dot(&u).abs().min(1.0).acos().to_degrees()
         })
         .collect();
-    angles.sort_by(f32::total_cmp);
-    let pct = |f: f32| angles[((angles.len() - 1) as f32 * f).round() as usize];
-    let (median_angle, p80_angle) = (pct(0.5), pct(0.8));
-    let mut bins = [0usize; 36];
-    for q in &xy {
-        let v = q - c;
-        let a = v.y.atan2(v.x).to_degrees() + 180.0;
-        bins[((a / 10.0) as usize).min(35)] += 1;
-    }
-    let arc = bins.iter().filter(|&&b| b >= 2).count() as f32 * 10.0;
+    let (median_angle, p80_angle) = (percentile(&mut angles, 0.5), percentile(&mut angles, 0.8));
+    let arc = arc_deg(&xy, c, 2);
     let r_med = {
         let mut r: Vec<f32> = radii.iter().map(|r| r.1).collect();
         r.sort_by(f32::total_cmp);
@@ -304,7 +295,7 @@ pub fn fit_revolution(
     let fit = Revolution {
         axis: [c.x, c.y],
         radii,
-        rms_m: rms,
+        residual_m: rms,
         median_angle_deg: median_angle,
         p80_angle_deg: p80_angle,
         arc_deg: arc,
@@ -342,6 +333,22 @@ pub fn fit_revolution(
         ));
     }
     Ok(fit)
+}
+
+/// The `f` quantile of `v` (sorted in place; not empty).
+fn percentile(v: &mut [f32], f: f32) -> f32 {
+    v.sort_by(f32::total_cmp);
+    v[((v.len() - 1) as f32 * f).round() as usize]
+}
+
+/// Degrees about `c` covered by `xy`: the 10-degree sectors holding at least `min_points`.
+fn arc_deg(xy: &[Vector2<f32>], c: Vector2<f32>, min_points: usize) -> f32 {
+    let mut bins = [0usize; 36];
+    for q in xy {
+        let v = q - c;
+        bins[(((v.y.atan2(v.x).to_degrees() + 180.0) / 10.0) as usize).min(35)] += 1;
+    }
+    bins.iter().filter(|&&b| b >= min_points).count() as f32 * 10.0
 }
 
 /// An upright cylinder from the rim of a flat top (levelled `points` with their `normals`), for
@@ -392,14 +399,8 @@ fn fit_top(
     let dist: Vec<f32> = xy.iter().map(|q| (q - c).norm()).collect();
     let r = dist.iter().sum::<f32>() / dist.len() as f32 + o.rim_inset_m;
     let mut res: Vec<f32> = dist.iter().map(|d| (d + o.rim_inset_m - r).abs()).collect();
-    res.sort_by(f32::total_cmp);
-    let p80 = res[((res.len() - 1) as f32 * 0.8).round() as usize];
-    let mut bins = [false; 36];
-    for q in &xy {
-        let v = q - c;
-        bins[(((v.y.atan2(v.x).to_degrees() + 180.0) / 10.0) as usize).min(35)] = true;
-    }
-    let arc = bins.iter().filter(|&&b| b).count() as f32 * 10.0;
+    let p80 = percentile(&mut res, 0.8);
+    let arc = arc_deg(&xy, c, 1);
     if !(r >= o.min_top_radius_m && r <= o.max_radius_m) {
         return Err(format!(
             "a rim of radius {r:.3} m (allowed {}-{} m)",
@@ -426,7 +427,7 @@ fn fit_top(
     Ok(Revolution {
         axis: [c.x, c.y],
         radii: vec![(z_top - o.slice_m, r)],
-        rms_m: p80,
+        residual_m: p80,
         median_angle_deg: 0.0,
         p80_angle_deg: 0.0,
         arc_deg: arc,
@@ -536,7 +537,7 @@ pub fn revolve_instances(
                     ""
                 },
                 fit.radii[fit.radii.len() / 2].1,
-                fit.rms_m * 1e3,
+                fit.residual_m * 1e3,
                 fit.arc_deg
             ),
             fit: Some(fit),
