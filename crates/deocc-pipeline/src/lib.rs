@@ -201,6 +201,17 @@ pub fn run_observed(
     timings.complete_s = t.elapsed().as_secs_f64();
     enter(observer, 4)?;
 
+    // The support planes' hidden parts first: the support and revolve stages stand objects on
+    // them; they join the cloud last (stage 6).
+    let t = Instant::now();
+    let fill = if opts.complete_planes {
+        planes::complete_planes(scene, &planes::PlaneOptions::default())
+            .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE)
+    } else {
+        PointCloud::default()
+    };
+    timings.planes_s = t.elapsed().as_secs_f64();
+
     let t = Instant::now();
     let mut generated = PointCloud::default();
     let mut records = Vec::new();
@@ -257,6 +268,7 @@ pub fn run_observed(
         let ids: BTreeSet<u16> = selected.keys().copied().collect();
         let mut both = observed.clone();
         both.append(&generated);
+        both.append(&fill);
         let extension = support::extend_to_support(
             &both,
             &ids,
@@ -278,6 +290,7 @@ pub fn run_observed(
         (generated, revolved) = revolve::revolve_instances(
             &observed,
             &generated,
+            &fill,
             &ids,
             &scene
                 .frames
@@ -305,11 +318,9 @@ pub fn run_observed(
 
     let t = Instant::now();
     if opts.complete_planes {
-        let fill = planes::complete_planes(scene, &planes::PlaneOptions::default())
-            .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE);
         completed = fuse_generated(&completed, &fill, opts.fusion_voxel_m)?;
     }
-    timings.planes_s = t.elapsed().as_secs_f64();
+    timings.planes_s += t.elapsed().as_secs_f64();
     enter(observer, 6)?;
     timings.total_s = t_all.elapsed().as_secs_f64();
 

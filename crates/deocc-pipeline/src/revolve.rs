@@ -24,8 +24,12 @@
 //! when the rim is at least `min_top_radius_m` in radius and spans `min_top_arc_deg`.
 //!
 //! An accepted instance's generated points (the completer's, the support stage's) are replaced by
-//! the fitted surface, sampled every `sample_m` from the instance's lowest point (the support
-//! stage has brought it down to what it stands on) to its highest observed point; a height
+//! the fitted surface, sampled every `sample_m` from what it stands on to its highest observed
+//! point. What it stands on is [`support::support_height`] under the solid's widest radius (plus
+//! [`SUPPORT_MARGIN_M`]) among other objects' observed points and the planes' fill: a table seen
+//! or filled under a bottle of which only the neck shows, where a completer's points may stop
+//! short of it or reach below it; without such a support, the instance's lowest observed or
+//! generated point; a height
 //! without observed side points takes the radius of the nearest slice that has them, except below
 //! a lowest slice narrower than `min_top_radius_m` (a bottle's neck: it says nothing of the body),
 //! where the completer's points at that height, about the fitted axis, may widen it. The samples
@@ -39,11 +43,16 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use deocc_geometry::normals::estimate_normals;
 use deocc_geometry::{KdIndex, PointCloud, Provenance};
-use nalgebra::{Point3, Rotation3, Vector2, Vector3};
+use nalgebra::{Point2, Point3, Rotation3, Vector2, Vector3};
+
+use crate::support;
 use serde::{Deserialize, Serialize};
 
 /// How far inside an accepted solid another object's generated point must lie to be dropped.
 pub const INSIDE_M: f32 = 0.003;
+
+/// A solid's support is searched under its widest radius plus this.
+pub const SUPPORT_MARGIN_M: f32 = 0.02;
 
 /// Confidence of a point on an accepted surface of revolution.
 pub const REVOLVE_CONFIDENCE: f32 = 0.9;
@@ -74,6 +83,8 @@ pub struct RevolveOptions {
     /// How far inside the true rim the observed cloud's rim points lie (its voxels' centroids
     /// sit about a quarter voxel inside an edge).
     pub rim_inset_m: f32,
+    /// The support under a solid is searched at most this far below its observed bottom.
+    pub max_drop_m: f32,
 }
 
 impl Default for RevolveOptions {
@@ -95,6 +106,7 @@ impl Default for RevolveOptions {
             max_top_residual_m: 0.002,
             min_top_arc_deg: 90.0,
             rim_inset_m: 0.00125,
+            max_drop_m: 0.5,
         }
     }
 }
@@ -442,6 +454,7 @@ fn fit_top(
 pub fn revolve_instances(
     observed: &PointCloud,
     generated: &PointCloud,
+    fill: &PointCloud,
     ids: &BTreeSet<u16>,
     cameras: &[Point3<f32>],
     o: &RevolveOptions,
@@ -465,6 +478,17 @@ pub fn revolve_instances(
     let mut replaced: BTreeSet<u32> = BTreeSet::new();
     let mut solids: Vec<Solid> = Vec::new();
     let mut surface = PointCloud::default();
+    // What may support a solid: other instances' observed points and the planes' fill, levelled.
+    let fill_inst = fill.instance.as_deref().unwrap_or(&[]);
+    let support_points = |id: u32| -> Vec<Point3<f32>> {
+        let seen = (0..observed.len())
+            .filter(|&i| obs_inst[i] != id)
+            .map(|i| level * observed.positions[i]);
+        let planes = (0..fill.len())
+            .filter(|&i| fill_inst.get(i).is_none_or(|&g| g != id))
+            .map(|i| level * fill.positions[i]);
+        seen.chain(planes).collect()
+    };
     for &id in ids {
         let idx = own.get(&id).map(Vec::as_slice).unwrap_or(&[]);
         let pts: Vec<Point3<f32>> = idx.iter().map(|&i| level * observed.positions[i]).collect();
@@ -486,11 +510,26 @@ pub fn revolve_instances(
             .filter(|(_, &g)| g == id as u32)
             .map(|(p, _)| level * p)
             .collect();
+        let others = support_points(id as u32);
         let obs_z = pts.iter().map(|p| p.z);
-        let bottom = obs_z
-            .clone()
-            .chain(gen_pts.iter().map(|p| p.z))
-            .fold(f32::MAX, f32::min);
+        // The bottom is what the solid stands on when a support shows under it (the table below
+        // a bottle of which only the neck shows; not a completer's guess, which may reach below
+        // the table or stop short of it), else the lowest observed or generated point.
+        let r_max = fit.radii.iter().map(|r| r.1).fold(0.0, f32::max) + SUPPORT_MARGIN_M;
+        let seen_bottom = obs_z.clone().fold(f32::MAX, f32::min);
+        let support = support::support_height(
+            others.iter().copied(),
+            Point2::new(fit.axis[0] - r_max, fit.axis[1] - r_max),
+            Point2::new(fit.axis[0] + r_max, fit.axis[1] + r_max),
+            seen_bottom - o.max_drop_m,
+            seen_bottom + SUPPORT_MARGIN_M / 2.0,
+        );
+        let bottom = support.unwrap_or_else(|| {
+            obs_z
+                .clone()
+                .chain(gen_pts.iter().map(|p| p.z))
+                .fold(f32::MAX, f32::min)
+        });
         let top = obs_z.fold(f32::MIN, f32::max);
         // A narrow lowest slice (a bottle's neck) says nothing of the body below it: there the
         // completer's points, about the fitted axis, may widen the surface.
@@ -530,7 +569,7 @@ pub fn revolve_instances(
             instance_id: id,
             reason: format!(
                 "{dropped} generated points replaced by {n} on a surface of revolution{} (radius \
-                 {:.3} m, residual {:.1} mm, arc {:.0} deg)",
+                 {:.3} m, residual {:.1} mm, arc {:.0} deg, from z {bottom:.3}{})",
                 if fit.from_top {
                     " fitted to the top's rim"
                 } else {
@@ -538,7 +577,12 @@ pub fn revolve_instances(
                 },
                 fit.radii[fit.radii.len() / 2].1,
                 fit.residual_m * 1e3,
-                fit.arc_deg
+                fit.arc_deg,
+                if support.is_some() {
+                    " where it stands"
+                } else {
+                    ", its lowest point"
+                }
             ),
             fit: Some(fit),
         });
@@ -765,6 +809,7 @@ mod tests {
         let (out, records) = revolve_instances(
             &observed,
             &generated,
+            &PointCloud::default(),
             &[1].into(),
             &[],
             &RevolveOptions::default(),
@@ -782,6 +827,83 @@ mod tests {
         };
         assert!((radius_near(0.75) - 0.03).abs() < 0.003);
         assert!((radius_near(0.83) - 0.014).abs() < 0.002);
+    }
+
+    /// A can of which only the upper part shows above the box in front of it stands on the
+    /// table's fill, not on the box's face nor on a completer's guess of the box's far side.
+    #[test]
+    fn a_solid_stands_on_the_plane_below_it() {
+        let mut observed = PointCloud::from_positions(
+            side((0.0, 0.0), |_| 0.03, 0.06, -160.0, -20.0)
+                .iter()
+                .map(|p| Point3::new(p.x, p.y, p.z + 0.1))
+                .collect(),
+        );
+        let n_can = observed.len();
+        // The box's front face, a vertical sheet 4 cm in front of the can's axis.
+        let face: Vec<Point3<f32>> = (0..30)
+            .flat_map(|k| {
+                (0..40).map(move |j| {
+                    Point3::new(-0.08 + j as f32 * 0.004, -0.045, 0.7 + k as f32 * 0.004)
+                })
+            })
+            .collect();
+        let n_face = face.len();
+        observed.append(&PointCloud::from_positions(face));
+        observed.instance = Some(
+            std::iter::repeat_n(1, n_can)
+                .chain(std::iter::repeat_n(2, n_face))
+                .collect(),
+        );
+        // The completer's guess of the box's far side, under the can's footprint at 0.75 m.
+        let mut generated = PointCloud::from_positions(
+            (0..400)
+                .map(|j| {
+                    Point3::new(
+                        -0.04 + (j % 20) as f32 * 0.004,
+                        -0.04 + (j / 20) as f32 * 0.002,
+                        0.75,
+                    )
+                })
+                .collect(),
+        );
+        generated.instance = Some(vec![2; generated.len()]);
+        generated.generated = Some(vec![Provenance::Model.code(); generated.len()]);
+        // The table's fill at 0.7 m.
+        let mut fill = PointCloud::from_positions(
+            (0..900)
+                .map(|j| {
+                    Point3::new(
+                        -0.15 + (j % 30) as f32 * 0.01,
+                        -0.15 + (j / 30) as f32 * 0.01,
+                        0.7,
+                    )
+                })
+                .collect(),
+        );
+        fill.instance = Some(vec![3; fill.len()]);
+        let lowest = |fill: &PointCloud| {
+            let (out, records) = revolve_instances(
+                &observed,
+                &generated,
+                fill,
+                &[1].into(),
+                &[],
+                &RevolveOptions::default(),
+            );
+            assert!(records[0].fit.is_some(), "{records:?}");
+            out.positions
+                .iter()
+                .zip(out.instance.as_deref().unwrap())
+                .filter(|(_, &i)| i == 1)
+                .map(|(p, _)| p.z)
+                .fold(f32::MAX, f32::min)
+        };
+        let z = lowest(&fill);
+        assert!((z - 0.7).abs() < 0.003, "the can starts at {z}");
+        // Without the fill nothing under the can is a support: it starts where it was seen.
+        let z = lowest(&PointCloud::default());
+        assert!((z - 0.8).abs() < 0.003, "the can starts at {z}");
     }
 
     #[test]
@@ -829,8 +951,14 @@ mod tests {
         );
         generated.generated = Some(vec![Provenance::Model.code(); generated.len()]);
         let ids: BTreeSet<u16> = [1, 2].into();
-        let (out, records) =
-            revolve_instances(&observed, &generated, &ids, &[], &RevolveOptions::default());
+        let (out, records) = revolve_instances(
+            &observed,
+            &generated,
+            &PointCloud::default(),
+            &ids,
+            &[],
+            &RevolveOptions::default(),
+        );
         assert!(records[0].fit.is_some(), "{records:?}");
         assert!(records[1].fit.is_none(), "{records:?}");
         let inst = out.instance.as_deref().unwrap();

@@ -3,10 +3,14 @@
 //! to the surface it stands on.
 //!
 //! For each completed instance, its points (observed and generated) are taken; the support below
-//! it is the highest point of another instance (the table, or its plane fill) under the object's
-//! footprint (its box on the ground plane, 2 cm larger), at least 1 cm below the object's lowest
-//! point and at most `max_drop_m` below it. The object's lowest 2 cm slice is then copied down in
-//! `step_m` steps to just above that support. The copies carry the rules provenance; the carving
+//! it ([`support_height`]) is the highest horizontal sheet of other instances' observed or
+//! plane-fill points under the object's footprint (its box on the ground plane, 2 cm larger): a
+//! 1 cm band of heights whose points cover at least [`MIN_SUPPORT_COVER`] of the footprint's 1 cm
+//! cells, at most `max_drop_m` below the object's lowest point (within 1 cm of it, the object
+//! stands already and is left as it is). A
+//! vertical face (the box in front of a bottle) covers one row of cells, not a third of them, and
+//! a completer's guess of another object's hidden side is no support. The object's lowest 2 cm
+//! slice is then copied down in `step_m` steps to just above that support. The copies carry the rules provenance; the carving
 //! stage then removes those any view contradicts (where a view sees the table through them).
 //! Needs gravity: posed scenes in a z-up world frame (`up` in the options); pose-free input
 //! (registered to the first camera) is left as it is.
@@ -14,7 +18,55 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use deocc_geometry::{PointCloud, Provenance};
-use nalgebra::{Point3, Rotation3, Vector3};
+use nalgebra::{Point2, Point3, Rotation3, Vector3};
+
+/// Share of a footprint's 1 cm cells a horizontal sheet must cover to count as its support.
+pub const MIN_SUPPORT_COVER: f32 = 0.3;
+
+/// Cell size of the footprint grid and height step of [`support_height`]'s search.
+const CELL_M: f32 = 0.01;
+const BIN_M: f32 = 0.005;
+
+/// The height of the surface something with footprint `lo..hi` (ground-plane box) stands on,
+/// from `points` (a z-up frame; the caller keeps only other objects' observed or plane-fill
+/// points) with heights in `[floor, ceiling)`: the highest 1 cm band whose points cover at least
+/// [`MIN_SUPPORT_COVER`] of the footprint's 1 cm cells, as the median height of its points.
+/// `None` when no band covers enough.
+pub fn support_height(
+    points: impl Iterator<Item = Point3<f32>>,
+    lo: Point2<f32>,
+    hi: Point2<f32>,
+    floor: f32,
+    ceiling: f32,
+) -> Option<f32> {
+    let nx = (((hi.x - lo.x) / CELL_M).ceil() as usize).max(1);
+    let ny = (((hi.y - lo.y) / CELL_M).ceil() as usize).max(1);
+    // Height bins of half a band, each with its points' heights and cells.
+    let mut bins: BTreeMap<i32, Vec<(f32, usize)>> = BTreeMap::new();
+    for p in points.filter(|p| {
+        p.x >= lo.x && p.x <= hi.x && p.y >= lo.y && p.y <= hi.y && p.z >= floor && p.z < ceiling
+    }) {
+        let cx = (((p.x - lo.x) / CELL_M) as usize).min(nx - 1);
+        let cy = (((p.y - lo.y) / CELL_M) as usize).min(ny - 1);
+        bins.entry((p.z / BIN_M).floor() as i32)
+            .or_default()
+            .push((p.z, cy * nx + cx));
+    }
+    let need = (MIN_SUPPORT_COVER * (nx * ny) as f32).ceil() as usize;
+    let mut cells = BTreeSet::new();
+    // Each band is a bin and the one below it (1 cm), highest first.
+    for (&b, upper) in bins.iter().rev() {
+        let lower = bins.get(&(b - 1)).map(Vec::as_slice).unwrap_or(&[]);
+        cells.clear();
+        cells.extend(upper.iter().chain(lower).map(|&(_, c)| c));
+        if cells.len() >= need {
+            let mut z: Vec<f32> = upper.iter().chain(lower).map(|&(z, _)| z).collect();
+            z.sort_by(f32::total_cmp);
+            return Some(z[z.len() / 2]);
+        }
+    }
+    None
+}
 
 /// Settings of the support stage.
 #[derive(Debug, Clone, Copy)]
@@ -59,6 +111,12 @@ pub fn extend_to_support(
         .unwrap_or_else(|| Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI));
     let back = level.inverse();
     let pts: Vec<Point3<f32>> = cloud.positions.iter().map(|p| level * p).collect();
+    // What may support: observed points and plane fill (a cloud without provenance is observed).
+    let seen_or_plane = |i: usize| {
+        cloud.generated.as_deref().is_none_or(|g| {
+            g[i] == Provenance::Observed.code() || g[i] == Provenance::PlaneFill.code()
+        })
+    };
     let mut by_id: BTreeMap<u32, Vec<usize>> = BTreeMap::new();
     for (i, &id) in inst.iter().enumerate() {
         if ids.contains(&(id as u16)) {
@@ -75,21 +133,19 @@ pub fn extend_to_support(
             hi = hi.sup(&pts[i]);
         }
         let m = opts.footprint_margin_m;
-        let support = pts
-            .iter()
-            .zip(inst)
-            .filter(|(p, &other)| {
-                other != id
-                    && p.x >= lo.x - m
-                    && p.x <= hi.x + m
-                    && p.y >= lo.y - m
-                    && p.y <= hi.y + m
-                    && p.z < lo.z - 0.01
-                    && p.z >= lo.z - opts.max_drop_m
-            })
-            .map(|(p, _)| p.z)
-            .fold(f32::NEG_INFINITY, f32::max);
-        if !support.is_finite() {
+        let Some(support) = support_height(
+            (0..pts.len())
+                .filter(|&i| inst[i] != id && seen_or_plane(i))
+                .map(|i| pts[i]),
+            Point2::new(lo.x - m, lo.y - m),
+            Point2::new(hi.x + m, hi.y + m),
+            lo.z - opts.max_drop_m,
+            lo.z + 0.01,
+        ) else {
+            continue;
+        };
+        if support > lo.z - 0.01 {
+            // It stands already.
             continue;
         }
         let slice: Vec<usize> = own
@@ -168,5 +224,64 @@ mod tests {
             .unwrap()
             .iter()
             .all(|&g| g == Provenance::Rules.code()));
+    }
+
+    /// A box's vertical front face and a completer's guess of its hidden side are no support;
+    /// the table's sheet below them is.
+    #[test]
+    fn only_a_horizontal_sheet_of_observed_or_fill_points_supports() {
+        let (lo, hi) = (Point2::new(-0.05, -0.05), Point2::new(0.05, 0.05));
+        let face = (0..50).flat_map(|k| {
+            (0..25)
+                .map(move |j| Point3::new(-0.05 + j as f32 * 0.004, -0.045, 0.7 + k as f32 * 0.004))
+        });
+        let table = (0..400).map(|j| {
+            Point3::new(
+                -0.05 + (j % 20) as f32 * 0.005,
+                -0.05 + (j / 20) as f32 * 0.005,
+                0.7,
+            )
+        });
+        let z = support_height(face.clone().chain(table), lo, hi, 0.3, 0.9).unwrap();
+        assert!((z - 0.7).abs() < 0.005, "{z}");
+        assert_eq!(support_height(face, lo, hi, 0.3, 0.9), None);
+
+        // A neck at 0.85-0.9 behind the face; the completer guessed the box's far side at 0.75
+        // under it; the table's fill lies at 0.7.
+        let mut positions: Vec<Point3<f32>> = (0..36)
+            .flat_map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 36.0;
+                [0.85, 0.87, 0.89].map(|z| Point3::new(0.012 * a.cos(), 0.012 * a.sin(), z))
+            })
+            .collect();
+        let mut generated = vec![Provenance::Observed.code(); positions.len()];
+        let mut instance = vec![2; positions.len()];
+        for j in 0..100 {
+            positions.push(Point3::new(
+                -0.02 + (j % 10) as f32 * 0.004,
+                -0.02 + (j / 10) as f32 * 0.004,
+                0.75,
+            ));
+            generated.push(Provenance::Model.code());
+            instance.push(3);
+        }
+        for j in 0..400 {
+            positions.push(Point3::new(
+                -0.1 + (j % 20) as f32 * 0.01,
+                -0.1 + (j / 20) as f32 * 0.01,
+                0.7,
+            ));
+            generated.push(Provenance::PlaneFill.code());
+            instance.push(1);
+        }
+        let cloud = PointCloud {
+            positions,
+            instance: Some(instance),
+            generated: Some(generated),
+            ..Default::default()
+        };
+        let ext = extend_to_support(&cloud, &[2].into(), &SupportOptions::default());
+        let zmin = ext.positions.iter().map(|p| p.z).fold(f32::MAX, f32::min);
+        assert!(zmin > 0.7 && zmin < 0.71, "{zmin}");
     }
 }

@@ -12,7 +12,8 @@
 //!    No target point may come closer to the palm than `palm_clearance_m`.
 //! 4. Each jaw needs `min_jaw_points` points within `jaw_band_m` of where it touches, and a share
 //!    of them whose normal lies inside the friction cone (`friction_deg`) around the closing axis.
-//! 5. No scene point may lie inside a finger or the palm.
+//! 5. No scene point may lie inside a finger or the palm, each grown by `collision_margin_m`
+//!    (outwards and at the tips; the opening between the jaws stays as it is).
 //! 6. The contact angle ([`closure_angle`], the evaluator's criterion on the planning cloud)
 //!    must be inside the cone.
 //! 7. Score = the geometric mean of the two jaws' in-cone shares, times a support term
@@ -65,6 +66,10 @@ pub struct GraspOptions {
     pub open_margin_m: f32,
     /// Least distance from the palm to the target's points between the jaws.
     pub palm_clearance_m: f32,
+    /// Clearance kept between the fingers and palm and any scene point: the cloud samples a
+    /// surface every few millimetres and a completed side is uncertain by as much, so a finger
+    /// that slips between the points of an occluder's face would hit the face itself.
+    pub collision_margin_m: f32,
     /// Gravity's opposite in the cloud's frame (z up for the renderer's scenes).
     pub up: [f32; 3],
     /// Approaches with a larger upward component (moving up into the object) are not tried.
@@ -91,6 +96,7 @@ impl Default for GraspOptions {
             margin_m: 0.005,
             open_margin_m: 0.02,
             palm_clearance_m: 0.01,
+            collision_margin_m: 0.005,
             up: [0.0, 0.0, 1.0],
             max_upward: 0.3,
             nms_distance_m: 0.03,
@@ -119,6 +125,12 @@ impl GraspOptions {
             return Err(RobotError::Config(format!(
                 "voxel_m = {}: must be in (0, 0.1) m",
                 self.voxel_m
+            )));
+        }
+        if !(self.collision_margin_m >= 0.0 && self.collision_margin_m < 0.05) {
+            return Err(RobotError::Config(format!(
+                "collision_margin_m = {}: must be in [0, 0.05) m",
+                self.collision_margin_m
             )));
         }
         if !(self.friction_deg > 0.0 && self.friction_deg < 90.0) {
@@ -380,9 +392,10 @@ impl AntipodalPlanner {
         }
         if let Some(si) = scene_index {
             let c = grasp.center(g);
-            let r = g.bounding_radius(width);
+            let inflated = g.inflated(o.collision_margin_m);
+            let r = inflated.bounding_radius(width) + o.collision_margin_m;
             let hit = si.within(&c, r).into_iter().any(|nb| {
-                classify(&grasp.to_local(&scene[nb.index as usize]), width, g) == Part::Body
+                classify(&grasp.to_local(&scene[nb.index as usize]), width, &inflated) == Part::Body
             });
             if hit {
                 return None;

@@ -59,6 +59,19 @@ impl GripperConfig {
         Ok(())
     }
 
+    /// The same gripper grown by `margin` outwards: fingers thicker and taller and longer,
+    /// the palm deeper; the opening between the jaws is unchanged (for collision checks with a
+    /// clearance).
+    pub fn inflated(&self, margin: f32) -> Self {
+        Self {
+            finger_width: self.finger_width + margin,
+            finger_height: self.finger_height + 2.0 * margin,
+            depth: self.depth + margin,
+            max_aperture: self.max_aperture,
+            palm_thickness: self.palm_thickness + margin,
+        }
+    }
+
     /// Radius of a sphere around [`Grasp::center`] that holds the whole gripper at `width`.
     pub fn bounding_radius(&self, width: f32) -> f32 {
         let x = self.depth / 2.0 + self.palm_thickness;
