@@ -15,6 +15,7 @@
 //! | alignment and fusion | [`fuse`] | [`fuse::fuse_completion`] |
 //! | support: hidden bottoms down to the surface below | [`support`] | [`support::extend_to_support`] |
 //! | revolve: upright solids of revolution completed on their axis | [`revolve`] | [`revolve::revolve_instances`] |
+//! | cuboid: upright boxes seen at an angle completed as boxes | [`cuboid`] | [`cuboid::cuboid_instances`] |
 //! | carving | [`carve`] | [`carve::keep_hidden`] |
 //! | planes | [`planes`] | [`planes::complete_planes`] |
 //! | output folder | [`output`] | [`output::write_output`] |
@@ -27,6 +28,7 @@
 pub mod carve;
 pub mod complete;
 pub mod crops;
+pub mod cuboid;
 pub mod error;
 pub mod fuse;
 pub mod gate;
@@ -308,6 +310,29 @@ pub fn run_observed(
             },
         );
     }
+    let mut boxed = Vec::new();
+    if opts.cuboid_upright && scene.posed && registration.is_empty() {
+        let ids: BTreeSet<u16> = records
+            .iter()
+            .filter(|r| r.accepted)
+            .map(|r| r.instance_id)
+            .filter(|&id| {
+                !revolved
+                    .iter()
+                    .any(|r| r.instance_id == id && r.fit.is_some())
+            })
+            .collect();
+        (generated, boxed) = cuboid::cuboid_instances(
+            &observed,
+            &generated,
+            &fill,
+            &ids,
+            &cuboid::CuboidOptions {
+                up: opts.up.into(),
+                ..Default::default()
+            },
+        );
+    }
     let mut points_carved = 0;
     if opts.carve_generated {
         (generated, points_carved) = carve::keep_hidden(&generated, scene);
@@ -338,6 +363,7 @@ pub fn run_observed(
         timings,
         registration,
         &revolved,
+        &boxed,
     );
     Ok(PipelineOutput {
         observed,
@@ -387,6 +413,7 @@ fn make_report(
     timings: StageTimings,
     registration: &Registration,
     revolved: &[revolve::RevolveRecord],
+    boxed: &[cuboid::CuboidRecord],
 ) -> RunReport {
     let codes = completed.generated.as_deref().unwrap_or(&[]);
     let ids = completed.instance.as_deref().unwrap_or(&[]);
@@ -414,6 +441,7 @@ fn make_report(
                 .filter(|(&g, &i)| g > 0 && i == id as u32)
                 .count(),
             revolve: revolved.iter().find(|r| r.instance_id == id).cloned(),
+            cuboid: boxed.iter().find(|r| r.instance_id == id).cloned(),
         })
         .collect();
     let objects_completed = records

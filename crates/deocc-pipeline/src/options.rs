@@ -34,6 +34,9 @@ pub struct PipelineOptions {
     /// Replace the completion of an object whose observed side is an upright solid of
     /// revolution (a can, a bottle) by that surface ([`crate::revolve`]; posed scenes only).
     pub revolve_upright: bool,
+    /// Replace the completion of an object whose observed faces are an upright box seen at an
+    /// angle (two side faces) by that box ([`crate::cuboid`]; posed scenes only).
+    pub cuboid_upright: bool,
     /// Gravity's opposite in the scene's world frame (for the support stage).
     pub up: [f32; 3],
     /// Masks smaller than this (pixels) are not completed.
@@ -80,6 +83,7 @@ impl Default for PipelineOptions {
             complete_unoccluded: false,
             extend_to_support: true,
             revolve_upright: true,
+            cuboid_upright: true,
             up: [0.0, 0.0, 1.0],
             min_visible_px: 200,
             complete_planes: true,

@@ -15,6 +15,9 @@ pub struct InstanceReport {
     pub generated_points: usize,
     /// What the revolve stage made of it ([`crate::revolve`]); `None` when the stage did not run.
     pub revolve: Option<crate::revolve::RevolveRecord>,
+    /// What the cuboid stage made of it ([`crate::cuboid`]); `None` when the stage did not run
+    /// or the revolve stage took it.
+    pub cuboid: Option<crate::cuboid::CuboidRecord>,
 }
 
 /// One (instance, view) completion: who completed it, how its depth fitted, what it added.

@@ -1,0 +1,506 @@
+//! Stage: cuboid. An upright box seen at an angle (two side faces and the top) shows its whole
+//! footprint, but its far faces are hidden, and a completer leaves them sparse or misplaced; a
+//! gripper reaching behind the box for what it hides then passes through them. Such a box is
+//! completed as the cuboid its visible faces fix.
+//!
+//! For each completed instance the revolve stage did not take: its observed side points (normal
+//! within 30 degrees of horizontal) give the box's heading as the circular mean of four times
+//! their normals' yaw, accepted when
+//! - the normals agree with one rectangle (mean resultant length at least `min_concentration`;
+//!   a cylinder's normals turn with its arc and do not),
+//! - the footprint is seen: at least `min_face_points` side points whose normal lies within
+//!   `face_deg` of each of the two axes, or a top seen from above that spans `min_top_span` of
+//!   the footprint along both (one face seen head-on, without the top, leaves the depth unknown),
+//! - the side points lie on the rectangle through the observed extents: 80th percentile of their
+//!   distance to its nearest side at most `max_residual_m`,
+//! - the box is at most `max_side_m` on a side.
+//!
+//! The instance's generated points are then replaced by the four sides and the top, sampled every
+//! `sample_m` from what it stands on ([`support::support_height`]; else its lowest observed
+//! point) to its highest observed point, with the rules provenance, the nearest observed colour
+//! and confidence [`CUBOID_CONFIDENCE`]; carving keeps only what every view agrees is hidden.
+//! Posed scenes only (it needs gravity).
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use deocc_geometry::normals::estimate_normals;
+use deocc_geometry::{KdIndex, PointCloud, Provenance};
+use nalgebra::{Point2, Point3, Rotation3, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::support;
+
+/// Confidence of a point on an accepted cuboid.
+pub const CUBOID_CONFIDENCE: f32 = 0.9;
+
+/// Settings of the cuboid stage (metres, degrees).
+#[derive(Debug, Clone, Copy)]
+pub struct CuboidOptions {
+    pub up: Vector3<f32>,
+    pub min_concentration: f32,
+    pub face_deg: f32,
+    pub min_face_points: usize,
+    pub max_residual_m: f32,
+    pub max_side_m: f32,
+    /// Share of the footprint's extent along each axis the top must span to stand in for an
+    /// unseen pair of faces.
+    pub min_top_span: f32,
+    pub sample_m: f32,
+    pub normal_neighbours: usize,
+    /// The support is searched at most this far below the observed bottom.
+    pub max_drop_m: f32,
+}
+
+impl Default for CuboidOptions {
+    fn default() -> Self {
+        Self {
+            up: Vector3::z(),
+            min_concentration: 0.9,
+            face_deg: 15.0,
+            min_face_points: 30,
+            max_residual_m: 0.003,
+            max_side_m: 0.4,
+            min_top_span: 0.9,
+            sample_m: 0.004,
+            normal_neighbours: 16,
+            max_drop_m: 0.5,
+        }
+    }
+}
+
+/// A fitted upright cuboid in the levelled frame (`up` = +z).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Cuboid {
+    /// Footprint centre (x, y).
+    pub center: [f32; 2],
+    /// Heading of the first side's axis, radians in [0, pi/2).
+    pub yaw: f32,
+    /// Footprint extents along the heading and across it.
+    pub size: [f32; 2],
+    /// Bottom and top heights.
+    pub z: [f32; 2],
+    /// Mean resultant length of four times the side normals' yaw.
+    pub concentration: f32,
+    /// Side points whose normal lies along each axis.
+    pub face_points: [usize; 2],
+    /// The 80th percentile of the side points' distance to the footprint's nearest side.
+    pub residual_m: f32,
+}
+
+/// What the stage made of one instance, for the run report.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CuboidRecord {
+    pub instance_id: u16,
+    pub fit: Option<Cuboid>,
+    pub reason: String,
+}
+
+/// The footprint rectangle of `pts` (levelled, with their normals), or why not.
+pub fn fit_cuboid(
+    pts: &[Point3<f32>],
+    normals: &[Vector3<f32>],
+    o: &CuboidOptions,
+) -> Result<Cuboid, String> {
+    let side: Vec<usize> = (0..pts.len())
+        .filter(|&i| normals[i].norm_squared() > 0.5 && normals[i].z.abs() < 0.5)
+        .collect();
+    if side.len() < 2 * o.min_face_points {
+        return Err(format!("{} side points", side.len()));
+    }
+    let (mut c, mut s) = (0.0f32, 0.0f32);
+    for &i in &side {
+        let t = 4.0 * normals[i].y.atan2(normals[i].x);
+        c += t.cos();
+        s += t.sin();
+    }
+    let concentration = (c * c + s * s).sqrt() / side.len() as f32;
+    if concentration < o.min_concentration {
+        return Err(format!(
+            "side normals agree with a rectangle to {concentration:.2} (at least {:.2} needed)",
+            o.min_concentration
+        ));
+    }
+    let yaw = (s.atan2(c) / 4.0).rem_euclid(std::f32::consts::FRAC_PI_2);
+    let (u, v) = (
+        Vector2::new(yaw.cos(), yaw.sin()),
+        Vector2::new(-yaw.sin(), yaw.cos()),
+    );
+    let cos_face = o.face_deg.to_radians().cos();
+    let mut face_points = [0usize; 2];
+    for &i in &side {
+        let n = Vector2::new(normals[i].x, normals[i].y).normalize();
+        if n.dot(&u).abs() >= cos_face {
+            face_points[0] += 1;
+        } else if n.dot(&v).abs() >= cos_face {
+            face_points[1] += 1;
+        }
+    }
+    let local = |p: &Point3<f32>| Vector2::new(p.coords.xy().dot(&u), p.coords.xy().dot(&v));
+    let (mut lo, mut hi) = (Vector2::repeat(f32::MAX), Vector2::repeat(f32::MIN));
+    for p in pts {
+        let l = local(p);
+        lo = lo.inf(&l);
+        hi = hi.sup(&l);
+    }
+    let size = hi - lo;
+    // The top (points facing up within 1 cm of the highest) spans the footprint when it is seen
+    // from above: then it fixes the depth that one face seen head-on leaves open.
+    let ztop = pts.iter().map(|p| p.z).fold(f32::MIN, f32::max);
+    let top: Vec<Vector2<f32>> = (0..pts.len())
+        .filter(|&i| normals[i].z.abs() > 0.9 && pts[i].z > ztop - 0.01)
+        .map(|i| local(&pts[i]))
+        .collect();
+    let top_spans = top.len() >= o.min_face_points
+        && (0..2).all(|k| {
+            let (a, b) = top
+                .iter()
+                .fold((f32::MAX, f32::MIN), |(a, b), l| (a.min(l[k]), b.max(l[k])));
+            b - a >= o.min_top_span * size[k]
+        });
+    if !top_spans && face_points.iter().any(|&k| k < o.min_face_points) {
+        return Err(format!(
+            "faces seen with {} and {} points (both need {}) and the top not seen across: the \
+             depth is unknown",
+            face_points[0], face_points[1], o.min_face_points
+        ));
+    }
+    if size.max() > o.max_side_m {
+        return Err(format!(
+            "{:.2} m on a side (at most {:.2})",
+            size.max(),
+            o.max_side_m
+        ));
+    }
+    let mut d: Vec<f32> = side
+        .iter()
+        .map(|&i| {
+            let l = local(&pts[i]);
+            (l.x - lo.x)
+                .abs()
+                .min((hi.x - l.x).abs())
+                .min((l.y - lo.y).abs())
+                .min((hi.y - l.y).abs())
+        })
+        .collect();
+    d.sort_by(f32::total_cmp);
+    let residual_m = d[(d.len() * 4 / 5).min(d.len() - 1)];
+    if residual_m > o.max_residual_m {
+        return Err(format!(
+            "side points {:.1} mm off the rectangle (80%; at most {:.1})",
+            residual_m * 1e3,
+            o.max_residual_m * 1e3
+        ));
+    }
+    let mid = (lo + hi) / 2.0;
+    let centre = u * mid.x + v * mid.y;
+    let (zlo, zhi) = pts
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), p| (a.min(p.z), b.max(p.z)));
+    Ok(Cuboid {
+        center: [centre.x, centre.y],
+        yaw,
+        size: [size.x, size.y],
+        z: [zlo, zhi],
+        concentration,
+        face_points,
+        residual_m,
+    })
+}
+
+/// Points on the cuboid's four sides and top, every `step` (levelled frame).
+fn sample_cuboid(b: &Cuboid, step: f32) -> Vec<Point3<f32>> {
+    let (u, v) = (
+        Vector2::new(b.yaw.cos(), b.yaw.sin()),
+        Vector2::new(-b.yaw.sin(), b.yaw.cos()),
+    );
+    let c = Vector2::new(b.center[0], b.center[1]);
+    let (hx, hy) = (b.size[0] / 2.0, b.size[1] / 2.0);
+    let at = |a: f32, bb: f32, z: f32| {
+        let p = c + u * a + v * bb;
+        Point3::new(p.x, p.y, z)
+    };
+    let steps = |len: f32| ((len / step).ceil() as usize).max(1);
+    let mut out = Vec::new();
+    let (nz, nx, ny) = (steps(b.z[1] - b.z[0]), steps(b.size[0]), steps(b.size[1]));
+    for k in 0..=nz {
+        let z = b.z[0] + (b.z[1] - b.z[0]) * k as f32 / nz as f32;
+        for i in 0..=nx {
+            let a = -hx + b.size[0] * i as f32 / nx as f32;
+            out.push(at(a, -hy, z));
+            out.push(at(a, hy, z));
+        }
+        for j in 1..ny {
+            let bb = -hy + b.size[1] * j as f32 / ny as f32;
+            out.push(at(-hx, bb, z));
+            out.push(at(hx, bb, z));
+        }
+    }
+    for i in 1..nx {
+        for j in 1..ny {
+            out.push(at(
+                -hx + b.size[0] * i as f32 / nx as f32,
+                -hy + b.size[1] * j as f32 / ny as f32,
+                b.z[1],
+            ));
+        }
+    }
+    out
+}
+
+/// Replaces the generated points of each instance of `ids` that fits an upright cuboid (see the
+/// module docs) by the cuboid's surface; `fill` is the planes' fill (what an object may stand
+/// on, with the other objects' observed points).
+pub fn cuboid_instances(
+    observed: &PointCloud,
+    generated: &PointCloud,
+    fill: &PointCloud,
+    ids: &BTreeSet<u16>,
+    o: &CuboidOptions,
+) -> (PointCloud, Vec<CuboidRecord>) {
+    let mut records = Vec::new();
+    let (Some(obs_inst), Some(up)) = (observed.instance.as_deref(), o.up.try_normalize(1e-9))
+    else {
+        return (generated.clone(), records);
+    };
+    let level = Rotation3::rotation_between(&up, &Vector3::z())
+        .unwrap_or_else(|| Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI));
+    let back = level.inverse();
+    let mut own: BTreeMap<u16, Vec<usize>> = BTreeMap::new();
+    for (i, &id) in obs_inst.iter().enumerate() {
+        if id <= u16::MAX as u32 && ids.contains(&(id as u16)) {
+            own.entry(id as u16).or_default().push(i);
+        }
+    }
+    let fill_inst = fill.instance.as_deref().unwrap_or(&[]);
+    let gen_inst = generated.instance.as_deref().unwrap_or(&[]);
+    let mut replaced: BTreeSet<u32> = BTreeSet::new();
+    let mut surface = PointCloud::default();
+    for &id in ids {
+        let idx = own.get(&id).map(Vec::as_slice).unwrap_or(&[]);
+        let pts: Vec<Point3<f32>> = idx.iter().map(|&i| level * observed.positions[i]).collect();
+        let normals = if pts.len() > o.normal_neighbours {
+            estimate_normals(&pts, o.normal_neighbours).unwrap_or_default()
+        } else {
+            Vec::new()
+        };
+        let normals = if normals.len() == pts.len() {
+            normals
+        } else {
+            vec![Vector3::zeros(); pts.len()]
+        };
+        let mut fit = match fit_cuboid(&pts, &normals, o) {
+            Ok(f) => f,
+            Err(why) => {
+                records.push(CuboidRecord {
+                    instance_id: id,
+                    fit: None,
+                    reason: format!("kept the completion: {why}"),
+                });
+                continue;
+            }
+        };
+        let others: Vec<Point3<f32>> = (0..observed.len())
+            .filter(|&i| obs_inst[i] != id as u32)
+            .map(|i| level * observed.positions[i])
+            .chain(
+                (0..fill.len())
+                    .filter(|&i| fill_inst.get(i).is_none_or(|&g| g != id as u32))
+                    .map(|i| level * fill.positions[i]),
+            )
+            .collect();
+        let r = fit.size[0].hypot(fit.size[1]) / 2.0;
+        let support = support::support_height(
+            others.into_iter(),
+            Point2::new(fit.center[0] - r, fit.center[1] - r),
+            Point2::new(fit.center[0] + r, fit.center[1] + r),
+            fit.z[0] - o.max_drop_m,
+            fit.z[0] + 0.01,
+        );
+        if let Some(z) = support {
+            fit.z[0] = z.min(fit.z[0]);
+        }
+        let samples = sample_cuboid(&fit, o.sample_m);
+        let colors = match (observed.colors.as_deref(), KdIndex::build(&pts)) {
+            (Some(colors), Ok(index)) => samples
+                .iter()
+                .map(|s| colors[idx[index.nearest(s).index as usize]])
+                .collect(),
+            _ => vec![[128; 3]; samples.len()],
+        };
+        let n = samples.len();
+        surface.append(&PointCloud {
+            positions: samples.iter().map(|p| back * p).collect(),
+            colors: Some(colors),
+            instance: Some(vec![id as u32; n]),
+            generated: Some(vec![Provenance::Rules.code(); n]),
+            confidence: Some(vec![CUBOID_CONFIDENCE; n]),
+            ..Default::default()
+        });
+        replaced.insert(id as u32);
+        let dropped = gen_inst.iter().filter(|&&g| g == id as u32).count();
+        records.push(CuboidRecord {
+            instance_id: id,
+            reason: format!(
+                "{dropped} generated points replaced by {n} on a {:.3} x {:.3} x {:.3} m box \
+                 (residual {:.1} mm{})",
+                fit.size[0],
+                fit.size[1],
+                fit.z[1] - fit.z[0],
+                fit.residual_m * 1e3,
+                if support.is_some() {
+                    ", standing on the surface below"
+                } else {
+                    ""
+                }
+            ),
+            fit: Some(fit),
+        });
+    }
+    if replaced.is_empty() {
+        return (generated.clone(), records);
+    }
+    let keep: Vec<usize> = (0..generated.len())
+        .filter(|&i| !gen_inst.get(i).is_some_and(|g| replaced.contains(g)))
+        .collect();
+    let mut out = generated.select(&keep);
+    out.append(&surface);
+    (out, records)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The observed faces of an upright box (centre, yaw, size) seen from the corner between
+    /// its -u and -v faces, and its top, every 4 mm, with their normals.
+    fn seen_box(
+        c: (f32, f32),
+        yaw: f32,
+        size: (f32, f32, f32),
+        both_faces: bool,
+    ) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
+        let (u, v) = (
+            Vector2::new(yaw.cos(), yaw.sin()),
+            Vector2::new(-yaw.sin(), yaw.cos()),
+        );
+        let c = Vector2::new(c.0, c.1);
+        let (mut p, mut n) = (Vec::new(), Vec::new());
+        let mut push = |a: f32, b: f32, z: f32, nn: Vector3<f32>| {
+            let q = c + u * a + v * b;
+            p.push(Point3::new(q.x, q.y, 0.7 + z));
+            n.push(nn);
+        };
+        let grid = |len: f32| (0..=((len / 0.004) as usize)).map(move |k| k as f32 * 0.004);
+        for z in grid(size.2) {
+            for a in grid(size.0) {
+                push(
+                    a - size.0 / 2.0,
+                    -size.1 / 2.0,
+                    z,
+                    Vector3::new(-v.x, -v.y, 0.0),
+                );
+            }
+            if both_faces {
+                for b in grid(size.1) {
+                    push(
+                        -size.0 / 2.0,
+                        b - size.1 / 2.0,
+                        z,
+                        Vector3::new(-u.x, -u.y, 0.0),
+                    );
+                }
+            }
+        }
+        for a in grid(size.0) {
+            for b in grid(size.1) {
+                push(a - size.0 / 2.0, b - size.1 / 2.0, size.2, Vector3::z());
+            }
+        }
+        (p, n)
+    }
+
+    #[test]
+    fn a_box_seen_at_an_angle_is_fitted_and_one_face_is_not_enough() {
+        let o = CuboidOptions::default();
+        let (p, n) = seen_box((0.1, -0.2), 0.5, (0.2, 0.07, 0.25), true);
+        let b = fit_cuboid(&p, &n, &o).expect("a box");
+        assert!((b.yaw - 0.5).abs() < 0.01, "yaw {}", b.yaw);
+        assert!((b.size[0] - 0.2).abs() < 0.005 && (b.size[1] - 0.07).abs() < 0.005);
+        assert!((b.center[0] - 0.1).abs() < 0.003 && (b.center[1] + 0.2).abs() < 0.003);
+        let (p, n) = seen_box((0.1, -0.2), 0.5, (0.2, 0.07, 0.25), false);
+        // One face and the top: the top fixes the depth.
+        let b = fit_cuboid(&p, &n, &o).expect("a box from one face and its top");
+        assert!((b.size[1] - 0.07).abs() < 0.005);
+        // One face without the top (seen from level with it): no depth.
+        let (p, n): (Vec<_>, Vec<_>) = p.iter().zip(&n).filter(|(_, m)| m.z < 0.5).unzip();
+        let why = fit_cuboid(&p, &n, &o).unwrap_err();
+        assert!(why.contains("depth is unknown"), "{why}");
+    }
+
+    #[test]
+    fn a_cylinder_is_no_box() {
+        let (mut p, mut n) = (Vec::new(), Vec::new());
+        for k in 0..60 {
+            let t = (-170.0 + k as f32 * 2.7).to_radians();
+            for j in 0..30 {
+                p.push(Point3::new(
+                    0.04 * t.cos(),
+                    0.04 * t.sin(),
+                    0.7 + j as f32 * 0.004,
+                ));
+                n.push(Vector3::new(t.cos(), t.sin(), 0.0));
+            }
+        }
+        let why = fit_cuboid(&p, &n, &CuboidOptions::default()).unwrap_err();
+        assert!(why.contains("rectangle"), "{why}");
+    }
+
+    /// The stage puts the hidden far faces where the box is and stands it on the table's fill.
+    #[test]
+    fn the_hidden_faces_of_a_box_are_completed_to_the_table() {
+        let (p, _) = seen_box((0.0, 0.0), 0.3, (0.16, 0.08, 0.2), true);
+        // Seen from 0.75 m up: the lowest 5 cm hidden behind something in front.
+        let p: Vec<Point3<f32>> = p.into_iter().filter(|q| q.z > 0.75).collect();
+        let mut observed = PointCloud::from_positions(p);
+        observed.instance = Some(vec![1; observed.len()]);
+        let mut generated = PointCloud::from_positions(vec![Point3::new(0.3, 0.3, 0.8); 10]);
+        generated.instance = Some(vec![1; 10]);
+        let mut fill = PointCloud::from_positions(
+            (0..1600)
+                .map(|j| {
+                    Point3::new(
+                        -0.2 + (j % 40) as f32 * 0.01,
+                        -0.2 + (j / 40) as f32 * 0.01,
+                        0.7,
+                    )
+                })
+                .collect(),
+        );
+        fill.instance = Some(vec![2; fill.len()]);
+        let (out, records) = cuboid_instances(
+            &observed,
+            &generated,
+            &fill,
+            &[1].into(),
+            &CuboidOptions::default(),
+        );
+        assert!(records[0].fit.is_some(), "{records:?}");
+        assert!(out
+            .positions
+            .iter()
+            .all(|q| (q - Point3::new(0.3, 0.3, 0.8)).norm() > 0.01));
+        let zmin = out.positions.iter().map(|q| q.z).fold(f32::MAX, f32::min);
+        assert!((zmin - 0.7).abs() < 0.003, "{zmin}");
+        // The far corner (+u, +v), never seen, is on the surface (the 4 mm grid of the seen
+        // faces stops up to 4 mm short of their edges).
+        let (u, v) = (
+            Vector2::new(0.3f32.cos(), 0.3f32.sin()),
+            Vector2::new(-0.3f32.sin(), 0.3f32.cos()),
+        );
+        let far = u * 0.08 + v * 0.04;
+        assert!(out
+            .positions
+            .iter()
+            .any(|q| (Vector2::new(q.x, q.y) - far).norm() < 0.006 && (q.z - 0.8).abs() < 0.004));
+    }
+}
