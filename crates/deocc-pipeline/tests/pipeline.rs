@@ -476,6 +476,102 @@ fn an_occluded_can_is_completed_on_its_axis() {
     }
 }
 
+/// The box in front of a can, seen face on with its top (pickup-v1's 23rd scene), is completed
+/// as the box it is: heading, footprint and bottom within millimetres of the truth, and every
+/// generated point of it near the true box's faces.
+#[test]
+fn an_occluding_box_is_completed_as_a_box() {
+    let preset = deocc_synth::dataset::pickup_v1();
+    let rendered = render_full_scene(&preset.config, preset.seeds[22]).unwrap();
+    let target = rendered.scene.target.unwrap();
+    let scene = rendered.scene_input();
+    let chain = CompleterChain::single(RulesCompleter::default());
+    let opts = PipelineOptions {
+        complete_unoccluded: true,
+        ..Default::default()
+    };
+    let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
+    let boxes: Vec<_> = rendered
+        .scene
+        .objects
+        .iter()
+        .filter(|o| o.category.name() == "box" && o.instance_id != target)
+        .collect();
+    let mut fitted = 0;
+    for truth in boxes {
+        let Some(fit) = out
+            .report
+            .instances
+            .iter()
+            .find(|i| i.instance_id == truth.instance_id)
+            .and_then(|i| i.cuboid.as_ref())
+            .and_then(|c| c.fit.clone())
+        else {
+            continue;
+        };
+        fitted += 1;
+        // The true box's extents along the fitted heading and across it.
+        let (u, v) = (
+            [fit.yaw.cos(), fit.yaw.sin()],
+            [-fit.yaw.sin(), fit.yaw.cos()],
+        );
+        let along = |d: [f32; 2], p: &Point3<f32>| d[0] * p.x + d[1] * p.y;
+        let extent = |d: [f32; 2]| {
+            truth
+                .mesh
+                .vertices
+                .iter()
+                .fold((f32::MAX, f32::MIN), |(a, b), p| {
+                    (a.min(along(d, p)), b.max(along(d, p)))
+                })
+        };
+        let (eu, ev) = (extent(u), extent(v));
+        assert!(
+            (eu.1 - eu.0 - fit.size[0]).abs() < 0.006,
+            "{eu:?} vs {fit:?}"
+        );
+        assert!(
+            (ev.1 - ev.0 - fit.size[1]).abs() < 0.006,
+            "{ev:?} vs {fit:?}"
+        );
+        let zmin = truth
+            .mesh
+            .vertices
+            .iter()
+            .map(|p| p.z)
+            .fold(f32::MAX, f32::min);
+        assert!(
+            (fit.z[0] - zmin).abs() < 0.005,
+            "bottom {} vs {zmin}",
+            fit.z[0]
+        );
+        // Every generated point of the box lies on one of its true faces.
+        let gen = out.completed.generated.as_deref().unwrap();
+        let ids = out.completed.instance.as_deref().unwrap();
+        let mut n = 0;
+        for i in
+            (0..out.completed.len()).filter(|&i| gen[i] != 0 && ids[i] == truth.instance_id as u32)
+        {
+            let p = out.completed.positions[i];
+            let (a, b) = (along(u, &p), along(v, &p));
+            let off = (a - eu.0)
+                .abs()
+                .min((a - eu.1).abs())
+                .min((b - ev.0).abs())
+                .min((b - ev.1).abs());
+            let inside =
+                a > eu.0 - 0.006 && a < eu.1 + 0.006 && b > ev.0 - 0.006 && b < ev.1 + 0.006;
+            assert!(
+                inside && (off < 0.006 || p.z > fit.z[1] - 0.006),
+                "a box point {off} m off its faces"
+            );
+            n += 1;
+        }
+        assert!(n > 0);
+    }
+    assert_eq!(fitted, 1, "{:?}", out.report.instances);
+}
+
 /// Crops a completer declines go to the next one in the chain; crops every completer declines are
 /// reported as declined.
 #[test]
