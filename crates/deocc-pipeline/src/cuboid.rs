@@ -21,14 +21,15 @@
 //! and confidence [`CUBOID_CONFIDENCE`]; carving keeps only what every view agrees is hidden.
 //! Posed scenes only (it needs gravity).
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 
 use deocc_geometry::normals::estimate_normals;
-use deocc_geometry::{KdIndex, PointCloud, Provenance};
-use nalgebra::{Point2, Point3, Rotation3, Vector2, Vector3};
+use deocc_geometry::PointCloud;
+use nalgebra::{Point2, Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::support;
+use crate::revolve::fitted_surface;
+use crate::support::Ground;
 
 /// Confidence of a point on an accepted cuboid.
 pub const CUBOID_CONFIDENCE: f32 = 0.9;
@@ -36,7 +37,6 @@ pub const CUBOID_CONFIDENCE: f32 = 0.9;
 /// Settings of the cuboid stage (metres, degrees).
 #[derive(Debug, Clone, Copy)]
 pub struct CuboidOptions {
-    pub up: Vector3<f32>,
     pub min_concentration: f32,
     pub face_deg: f32,
     pub min_face_points: usize,
@@ -54,7 +54,6 @@ pub struct CuboidOptions {
 impl Default for CuboidOptions {
     fn default() -> Self {
         Self {
-            up: Vector3::z(),
             min_concentration: 0.9,
             face_deg: 15.0,
             min_face_points: 30,
@@ -248,36 +247,23 @@ fn sample_cuboid(b: &Cuboid, step: f32) -> Vec<Point3<f32>> {
 }
 
 /// Replaces the generated points of each instance of `ids` that fits an upright cuboid (see the
-/// module docs) by the cuboid's surface; `fill` is the planes' fill (what an object may stand
-/// on, with the other objects' observed points).
+/// module docs) by the cuboid's surface, standing on what `ground` shows under it.
 pub fn cuboid_instances(
     observed: &PointCloud,
     generated: &PointCloud,
-    fill: &PointCloud,
+    ground: &Ground,
     ids: &BTreeSet<u16>,
     o: &CuboidOptions,
 ) -> (PointCloud, Vec<CuboidRecord>) {
     let mut records = Vec::new();
-    let (Some(obs_inst), Some(up)) = (observed.instance.as_deref(), o.up.try_normalize(1e-9))
-    else {
-        return (generated.clone(), records);
-    };
-    let level = Rotation3::rotation_between(&up, &Vector3::z())
-        .unwrap_or_else(|| Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI));
-    let back = level.inverse();
-    let mut own: BTreeMap<u16, Vec<usize>> = BTreeMap::new();
-    for (i, &id) in obs_inst.iter().enumerate() {
-        if id <= u16::MAX as u32 && ids.contains(&(id as u16)) {
-            own.entry(id as u16).or_default().push(i);
-        }
-    }
-    let fill_inst = fill.instance.as_deref().unwrap_or(&[]);
+    let back = ground.level().inverse();
+    let own = ground.observed_by_instance(ids);
     let gen_inst = generated.instance.as_deref().unwrap_or(&[]);
     let mut replaced: BTreeSet<u32> = BTreeSet::new();
     let mut surface = PointCloud::default();
     for &id in ids {
         let idx = own.get(&id).map(Vec::as_slice).unwrap_or(&[]);
-        let pts: Vec<Point3<f32>> = idx.iter().map(|&i| level * observed.positions[i]).collect();
+        let pts: Vec<Point3<f32>> = idx.iter().map(|&i| ground.observed(i)).collect();
         let normals = if pts.len() > o.normal_neighbours {
             estimate_normals(&pts, o.normal_neighbours).unwrap_or_default()
         } else {
@@ -299,18 +285,9 @@ pub fn cuboid_instances(
                 continue;
             }
         };
-        let others: Vec<Point3<f32>> = (0..observed.len())
-            .filter(|&i| obs_inst[i] != id as u32)
-            .map(|i| level * observed.positions[i])
-            .chain(
-                (0..fill.len())
-                    .filter(|&i| fill_inst.get(i).is_none_or(|&g| g != id as u32))
-                    .map(|i| level * fill.positions[i]),
-            )
-            .collect();
         let r = fit.size[0].hypot(fit.size[1]) / 2.0;
-        let support = support::support_height(
-            others.into_iter(),
+        let support = ground.support_under(
+            id as u32,
             Point2::new(fit.center[0] - r, fit.center[1] - r),
             Point2::new(fit.center[0] + r, fit.center[1] + r),
             fit.z[0] - o.max_drop_m,
@@ -320,22 +297,16 @@ pub fn cuboid_instances(
             fit.z[0] = z.min(fit.z[0]);
         }
         let samples = sample_cuboid(&fit, o.sample_m);
-        let colors = match (observed.colors.as_deref(), KdIndex::build(&pts)) {
-            (Some(colors), Ok(index)) => samples
-                .iter()
-                .map(|s| colors[idx[index.nearest(s).index as usize]])
-                .collect(),
-            _ => vec![[128; 3]; samples.len()],
-        };
         let n = samples.len();
-        surface.append(&PointCloud {
-            positions: samples.iter().map(|p| back * p).collect(),
-            colors: Some(colors),
-            instance: Some(vec![id as u32; n]),
-            generated: Some(vec![Provenance::Rules.code(); n]),
-            confidence: Some(vec![CUBOID_CONFIDENCE; n]),
-            ..Default::default()
-        });
+        surface.append(&fitted_surface(
+            &samples,
+            &back,
+            id,
+            &pts,
+            idx,
+            observed,
+            CUBOID_CONFIDENCE,
+        ));
         replaced.insert(id as u32);
         let dropped = gen_inst.iter().filter(|&&g| g == id as u32).count();
         records.push(CuboidRecord {
@@ -480,7 +451,7 @@ mod tests {
         let (out, records) = cuboid_instances(
             &observed,
             &generated,
-            &fill,
+            &Ground::new(&observed, &fill, Vector3::z()).unwrap(),
             &[1].into(),
             &CuboidOptions::default(),
         );

@@ -281,18 +281,25 @@ pub fn run_observed(
         );
         generated.append(&extension.with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE));
     }
+    // The revolve and cuboid stages stand objects on what the views and the planes' fill show.
+    let upright = scene.posed && registration.is_empty();
+    let ground = if upright && (opts.revolve_upright || opts.cuboid_upright) {
+        support::Ground::new(&observed, &fill, opts.up.into())
+    } else {
+        None
+    };
+    // Only what a completer of the chain completed: an empty chain means no completion.
+    let mut ids: BTreeSet<u16> = records
+        .iter()
+        .filter(|r| r.accepted)
+        .map(|r| r.instance_id)
+        .collect();
     let mut revolved = Vec::new();
-    if opts.revolve_upright && scene.posed && registration.is_empty() {
-        // Only what a completer of the chain completed: an empty chain means no completion.
-        let ids: BTreeSet<u16> = records
-            .iter()
-            .filter(|r| r.accepted)
-            .map(|r| r.instance_id)
-            .collect();
+    if let Some(ground) = ground.as_ref().filter(|_| opts.revolve_upright) {
         (generated, revolved) = revolve::revolve_instances(
             &observed,
             &generated,
-            &fill,
+            ground,
             &ids,
             &scene
                 .frames
@@ -300,7 +307,6 @@ pub fn run_observed(
                 .map(|f| f.camera.center())
                 .collect::<Vec<_>>(),
             &revolve::RevolveOptions {
-                up: opts.up.into(),
                 rim_inset_m: opts.observed_voxel_m as f32 / 4.0,
                 // A rim through voxel centroids wanders by up to half a voxel; 0.8 voxel here
                 // and the side's 2 mm were chosen on pickup-v1's tuning seeds
@@ -311,26 +317,19 @@ pub fn run_observed(
         );
     }
     let mut boxed = Vec::new();
-    if opts.cuboid_upright && scene.posed && registration.is_empty() {
-        let ids: BTreeSet<u16> = records
-            .iter()
-            .filter(|r| r.accepted)
-            .map(|r| r.instance_id)
-            .filter(|&id| {
-                !revolved
-                    .iter()
-                    .any(|r| r.instance_id == id && r.fit.is_some())
-            })
-            .collect();
+    if let Some(ground) = ground.as_ref().filter(|_| opts.cuboid_upright) {
+        // What the revolve stage took is done.
+        ids.retain(|&id| {
+            !revolved
+                .iter()
+                .any(|r| r.instance_id == id && r.fit.is_some())
+        });
         (generated, boxed) = cuboid::cuboid_instances(
             &observed,
             &generated,
-            &fill,
+            ground,
             &ids,
-            &cuboid::CuboidOptions {
-                up: opts.up.into(),
-                ..Default::default()
-            },
+            &cuboid::CuboidOptions::default(),
         );
     }
     let mut points_carved = 0;

@@ -45,7 +45,7 @@ use deocc_geometry::normals::estimate_normals;
 use deocc_geometry::{KdIndex, PointCloud, Provenance};
 use nalgebra::{Point2, Point3, Rotation3, Vector2, Vector3};
 
-use crate::support;
+use crate::support::Ground;
 use serde::{Deserialize, Serialize};
 
 /// How far inside an accepted solid another object's generated point must lie to be dropped.
@@ -60,7 +60,6 @@ pub const REVOLVE_CONFIDENCE: f32 = 0.9;
 /// Settings of the revolve stage (metres, degrees).
 #[derive(Debug, Clone, Copy)]
 pub struct RevolveOptions {
-    pub up: Vector3<f32>,
     pub slice_m: f32,
     pub min_points: usize,
     pub max_rms_m: f32,
@@ -90,7 +89,6 @@ pub struct RevolveOptions {
 impl Default for RevolveOptions {
     fn default() -> Self {
         Self {
-            up: Vector3::z(),
             slice_m: 0.01,
             min_points: 40,
             max_rms_m: 0.002,
@@ -454,44 +452,23 @@ fn fit_top(
 pub fn revolve_instances(
     observed: &PointCloud,
     generated: &PointCloud,
-    fill: &PointCloud,
+    ground: &Ground,
     ids: &BTreeSet<u16>,
     cameras: &[Point3<f32>],
     o: &RevolveOptions,
 ) -> (PointCloud, Vec<RevolveRecord>) {
     let mut records = Vec::new();
-    let (Some(obs_inst), Some(up)) = (observed.instance.as_deref(), o.up.try_normalize(1e-9))
-    else {
-        return (generated.clone(), records);
-    };
-    let level = Rotation3::rotation_between(&up, &Vector3::z())
-        .unwrap_or_else(|| Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI));
+    let level = *ground.level();
     let back = level.inverse();
     let cameras: Vec<Point3<f32>> = cameras.iter().map(|c| level * c).collect();
-    let mut own: BTreeMap<u16, Vec<usize>> = BTreeMap::new();
-    for (i, &id) in obs_inst.iter().enumerate() {
-        if id <= u16::MAX as u32 && ids.contains(&(id as u16)) {
-            own.entry(id as u16).or_default().push(i);
-        }
-    }
+    let own = ground.observed_by_instance(ids);
     let gen_inst = generated.instance.as_deref().unwrap_or(&[]);
     let mut replaced: BTreeSet<u32> = BTreeSet::new();
     let mut solids: Vec<Solid> = Vec::new();
     let mut surface = PointCloud::default();
-    // What may support a solid: other instances' observed points and the planes' fill, levelled.
-    let fill_inst = fill.instance.as_deref().unwrap_or(&[]);
-    let support_points = |id: u32| -> Vec<Point3<f32>> {
-        let seen = (0..observed.len())
-            .filter(|&i| obs_inst[i] != id)
-            .map(|i| level * observed.positions[i]);
-        let planes = (0..fill.len())
-            .filter(|&i| fill_inst.get(i).is_none_or(|&g| g != id))
-            .map(|i| level * fill.positions[i]);
-        seen.chain(planes).collect()
-    };
     for &id in ids {
         let idx = own.get(&id).map(Vec::as_slice).unwrap_or(&[]);
-        let pts: Vec<Point3<f32>> = idx.iter().map(|&i| level * observed.positions[i]).collect();
+        let pts: Vec<Point3<f32>> = idx.iter().map(|&i| ground.observed(i)).collect();
         let fit = match fit_revolution(&pts, &cameras, o) {
             Ok(f) => f,
             Err(why) => {
@@ -510,15 +487,14 @@ pub fn revolve_instances(
             .filter(|(_, &g)| g == id as u32)
             .map(|(p, _)| level * p)
             .collect();
-        let others = support_points(id as u32);
         let obs_z = pts.iter().map(|p| p.z);
         // The bottom is what the solid stands on when a support shows under it (the table below
         // a bottle of which only the neck shows; not a completer's guess, which may reach below
         // the table or stop short of it), else the lowest observed or generated point.
         let r_max = fit.radii.iter().map(|r| r.1).fold(0.0, f32::max) + SUPPORT_MARGIN_M;
         let seen_bottom = obs_z.clone().fold(f32::MAX, f32::min);
-        let support = support::support_height(
-            others.iter().copied(),
+        let support = ground.support_under(
+            id as u32,
             Point2::new(fit.axis[0] - r_max, fit.axis[1] - r_max),
             Point2::new(fit.axis[0] + r_max, fit.axis[1] + r_max),
             seen_bottom - o.max_drop_m,
@@ -553,16 +529,16 @@ pub fn revolve_instances(
         };
         let (samples, rows) = sample_surface(&fit, bottom, top, &below, o);
         solids.push((id as u32, axis, rows));
-        let colors = nearest_colors(&pts, idx, observed, &samples);
         let n = samples.len();
-        surface.append(&PointCloud {
-            positions: samples.iter().map(|p| back * p).collect(),
-            colors: Some(colors),
-            instance: Some(vec![id as u32; n]),
-            generated: Some(vec![Provenance::Rules.code(); n]),
-            confidence: Some(vec![REVOLVE_CONFIDENCE; n]),
-            ..Default::default()
-        });
+        surface.append(&fitted_surface(
+            &samples,
+            &back,
+            id,
+            &pts,
+            idx,
+            observed,
+            REVOLVE_CONFIDENCE,
+        ));
         replaced.insert(id as u32);
         let dropped = gen_inst.iter().filter(|&&g| g == id as u32).count();
         records.push(RevolveRecord {
@@ -650,6 +626,29 @@ fn sample_surface(
     (out, radii)
 }
 
+/// A fitted surface's `samples` (levelled; `back` returns them to the world) as instance `id`'s
+/// points: the rules provenance, `confidence`, and the colour of the instance's nearest observed
+/// point (levelled `pts`, indices `idx` into `observed`).
+pub(crate) fn fitted_surface(
+    samples: &[Point3<f32>],
+    back: &Rotation3<f32>,
+    id: u16,
+    pts: &[Point3<f32>],
+    idx: &[usize],
+    observed: &PointCloud,
+    confidence: f32,
+) -> PointCloud {
+    let n = samples.len();
+    PointCloud {
+        positions: samples.iter().map(|p| back * p).collect(),
+        colors: Some(nearest_colors(pts, idx, observed, samples)),
+        instance: Some(vec![id as u32; n]),
+        generated: Some(vec![Provenance::Rules.code(); n]),
+        confidence: Some(vec![confidence; n]),
+        ..Default::default()
+    }
+}
+
 /// The colour of the nearest observed point of the instance (levelled `pts`, indices `idx`
 /// into `observed`) for each sample; grey without colours.
 fn nearest_colors(
@@ -670,6 +669,11 @@ fn nearest_colors(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What a z-up test scene's objects stand on.
+    fn ground(observed: &PointCloud, fill: &PointCloud) -> Ground {
+        Ground::new(observed, fill, Vector3::z()).unwrap()
+    }
 
     /// Points of the side of an upright solid whose radius at height z is `r(z)`, over the arc
     /// of angles [a0, a1] (degrees), every 4 mm.
@@ -809,7 +813,7 @@ mod tests {
         let (out, records) = revolve_instances(
             &observed,
             &generated,
-            &PointCloud::default(),
+            &ground(&observed, &PointCloud::default()),
             &[1].into(),
             &[],
             &RevolveOptions::default(),
@@ -886,7 +890,7 @@ mod tests {
             let (out, records) = revolve_instances(
                 &observed,
                 &generated,
-                fill,
+                &ground(&observed, fill),
                 &[1].into(),
                 &[],
                 &RevolveOptions::default(),
@@ -954,7 +958,7 @@ mod tests {
         let (out, records) = revolve_instances(
             &observed,
             &generated,
-            &PointCloud::default(),
+            &ground(&observed, &PointCloud::default()),
             &ids,
             &[],
             &RevolveOptions::default(),

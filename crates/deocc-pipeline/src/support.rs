@@ -20,6 +20,95 @@ use std::collections::{BTreeMap, BTreeSet};
 use deocc_geometry::{PointCloud, Provenance};
 use nalgebra::{Point2, Point3, Rotation3, Vector3};
 
+/// The rotation taking `up` to +z (a half turn about x when `up` is -z); `None` for a zero `up`.
+pub fn leveller(up: Vector3<f32>) -> Option<Rotation3<f32>> {
+    let up = up.try_normalize(1e-9)?;
+    Some(
+        Rotation3::rotation_between(&up, &Vector3::z()).unwrap_or_else(|| {
+            Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI)
+        }),
+    )
+}
+
+/// What completed objects may stand on, levelled once for the stages that stand them up (revolve,
+/// cuboid): the observed points and the planes' fill, each with its instance (`u32::MAX` where
+/// the cloud has none).
+pub struct Ground {
+    level: Rotation3<f32>,
+    points: Vec<Point3<f32>>,
+    instance: Vec<u32>,
+    observed: usize,
+}
+
+impl Ground {
+    /// `None` for a zero `up`.
+    pub fn new(observed: &PointCloud, fill: &PointCloud, up: Vector3<f32>) -> Option<Self> {
+        let level = leveller(up)?;
+        let ids = |c: &PointCloud| -> Vec<u32> {
+            c.instance
+                .clone()
+                .unwrap_or_else(|| vec![u32::MAX; c.len()])
+        };
+        let mut instance = ids(observed);
+        instance.extend(ids(fill));
+        Some(Self {
+            points: observed
+                .positions
+                .iter()
+                .chain(&fill.positions)
+                .map(|p| level * p)
+                .collect(),
+            instance,
+            observed: observed.len(),
+            level,
+        })
+    }
+
+    /// World to levelled (`up` = +z).
+    pub fn level(&self) -> &Rotation3<f32> {
+        &self.level
+    }
+
+    /// The `i`-th observed point, levelled.
+    pub fn observed(&self, i: usize) -> Point3<f32> {
+        self.points[i]
+    }
+
+    /// Indices of the observed points of each instance of `ids`.
+    pub fn observed_by_instance(&self, ids: &BTreeSet<u16>) -> BTreeMap<u16, Vec<usize>> {
+        let mut own: BTreeMap<u16, Vec<usize>> = BTreeMap::new();
+        for (i, &id) in self.instance[..self.observed].iter().enumerate() {
+            if id <= u16::MAX as u32 && ids.contains(&(id as u16)) {
+                own.entry(id as u16).or_default().push(i);
+            }
+        }
+        own
+    }
+
+    /// [`support_height`] under the levelled box `lo..hi` among the points of instances other
+    /// than `id`.
+    pub fn support_under(
+        &self,
+        id: u32,
+        lo: Point2<f32>,
+        hi: Point2<f32>,
+        floor: f32,
+        ceiling: f32,
+    ) -> Option<f32> {
+        support_height(
+            self.points
+                .iter()
+                .zip(&self.instance)
+                .filter(|(_, &i)| i != id)
+                .map(|(p, _)| *p),
+            lo,
+            hi,
+            floor,
+            ceiling,
+        )
+    }
+}
+
 /// Share of a footprint's 1 cm cells a horizontal sheet must cover to count as its support.
 pub const MIN_SUPPORT_COVER: f32 = 0.3;
 
@@ -103,12 +192,10 @@ pub fn extend_to_support(
     let Some(inst) = cloud.instance.as_deref() else {
         return empty;
     };
-    let Some(up) = opts.up.try_normalize(1e-9) else {
+    // Work in a frame where `up` is +z.
+    let Some(level) = leveller(opts.up) else {
         return empty;
     };
-    // Work in a frame where `up` is +z.
-    let level = Rotation3::rotation_between(&up, &Vector3::z())
-        .unwrap_or_else(|| Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI));
     let back = level.inverse();
     let pts: Vec<Point3<f32>> = cloud.positions.iter().map(|p| level * p).collect();
     // What may support: observed points and plane fill (a cloud without provenance is observed).
