@@ -61,7 +61,11 @@ pub struct PlaceArgs {
     /// GL-DoT model folder; default: the built-in model.
     #[arg(long)]
     weights: Option<PathBuf>,
-    /// Number of place-v1 scenes (the first N of its 100).
+    /// The benchmark: place-v1 (6-10 things a table) or place-v2 (12-18: the unseen space is
+    /// often taken).
+    #[arg(long, default_value = "place-v1", value_parser = ["place-v1", "place-v2"])]
+    preset: String,
+    /// Number of scenes (the first N of the preset's 100).
     #[arg(long, default_value_t = 100)]
     scenes: usize,
     #[command(flatten)]
@@ -71,9 +75,10 @@ pub struct PlaceArgs {
 pub fn place(a: PlaceArgs) -> Result<()> {
     let chains = robot_chains(a.weights.as_ref())?;
     let opts = a.pipeline.options()?;
-    let n = a.scenes.min(deocc_synth::dataset::place_v1().seeds.len());
+    let preset = deocc_synth::dataset::preset(&a.preset)?;
+    let n = a.scenes.min(preset.seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
-    let report = deocc_eval::place::place_benchmark(&chains, &opts, n, &mut || pb.inc(1))?;
+    let report = deocc_eval::place::place_benchmark(&preset, &chains, &opts, n, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())

@@ -31,7 +31,7 @@ pub struct ScenesArgs {
     count: usize,
     #[arg(long, default_value_t = 0, conflicts_with = "preset")]
     seed: u64,
-    /// A named preset instead of --count/--seed and the scene options: bench-v1, bench-v1-small, chairs-v1, pickup-v1, place-v1.
+    /// A named preset instead of --count/--seed and the scene options: bench-v1, bench-v1-small, chairs-v1, pickup-v1, place-v1, place-v2.
     #[arg(long)]
     preset: Option<String>,
     /// With --preset: only its first N scenes.

@@ -460,8 +460,8 @@ pub fn pickup_v1() -> Preset {
     }
 }
 
-/// `place-v1`: 100 cluttered tables seen once from 1.5-2.5 m, at least 30% of the free table
-/// top hidden ([`crate::tasks::place_scene`]); seeds 9_300_000..9_300_100.
+/// `place-v1`: 100 cluttered tables (6-10 things) seen once from 1.5-2.5 m, at least 30% of the
+/// free table top hidden ([`crate::tasks::place_scene`]); seeds 9_300_000..9_300_100.
 pub fn place_v1() -> Preset {
     Preset {
         name: "place-v1".into(),
@@ -469,11 +469,25 @@ pub fn place_v1() -> Preset {
             kind: SceneKind::Place,
             views: 1,
             camera_path: CameraPath::Single,
+            tabletop_objects_min: 6,
+            tabletop_objects_max: 10,
             gt_points_per_m2: 2_000.0,
             ..SceneConfig::default()
         },
         seeds: (9_300_000..9_300_100).collect(),
     }
+}
+
+/// `place-v2`: place-v1 with twice the clutter (12-18 things), so that the space the view does
+/// not see is often taken: where assuming unseen space free goes wrong. Seeds
+/// 9_400_000..9_400_100.
+pub fn place_v2() -> Preset {
+    let mut p = place_v1();
+    p.name = "place-v2".into();
+    p.config.tabletop_objects_min = 12;
+    p.config.tabletop_objects_max = 18;
+    p.seeds = (9_400_000..9_400_100).collect();
+    p
 }
 
 /// Named presets known to `deocc synth scenes --preset`.
@@ -483,6 +497,7 @@ pub fn preset(name: &str) -> Result<Preset> {
         "chairs-v1" => Ok(chairs_v1()),
         "pickup-v1" => Ok(pickup_v1()),
         "place-v1" => Ok(place_v1()),
+        "place-v2" => Ok(place_v2()),
         "bench-v1-small" => {
             // The first 5 scenes of bench-v1 at 320x240: for tests and quick looks.
             let mut p = bench_v1();
@@ -494,7 +509,7 @@ pub fn preset(name: &str) -> Result<Preset> {
             Ok(p)
         }
         other => Err(SynthError::Config(format!(
-            "unknown preset '{other}' (known: bench-v1, bench-v1-small, chairs-v1, pickup-v1, place-v1)"
+            "unknown preset '{other}' (known: bench-v1, bench-v1-small, chairs-v1, pickup-v1, place-v1, place-v2)"
         ))),
     }
 }

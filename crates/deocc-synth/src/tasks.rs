@@ -6,8 +6,9 @@
 //!   1.0-1.5 m (horizontally) from the target. Attempts are redrawn until 5-95% of the target's
 //!   silhouette is visible (a target nobody sees cannot be asked for; one nobody hides tests
 //!   nothing).
-//! - **place** ([`place_scene`]): a cluttered table (6-10 things) seen once from 1.5-2.5 m;
-//!   redrawn until at least 30% of the table's free surface is hidden from the view.
+//! - **place** ([`place_scene`]): a cluttered table (`tabletop_objects_min..=max` things: 6-10
+//!   in place-v1, 12-18 in place-v2) seen once from 1.5-2.5 m; redrawn until at least 30% of the
+//!   table's free surface is hidden from the view.
 //!
 //! Attempt `k` of seed `s` draws from the generator seeded `s * 64 + k`, so a seed fixes the
 //! scene.
@@ -215,7 +216,9 @@ fn place_attempt(config: &SceneConfig, seed: u64, stream: u64) -> Result<Scene, 
     let mut objects = Vec::new();
     let table = room_and_table(&mut r, &mut objects);
     let mut taken = Vec::new();
-    let n = r.random_range(6..=10);
+    let n = r.random_range(
+        config.tabletop_objects_min..=config.tabletop_objects_max.max(config.tabletop_objects_min),
+    );
     scatter(&mut r, &mut objects, &table, &mut taken, n);
     let az = r.random_range(200f32..250.0).to_radians();
     let dist = r.random_range(1.5..2.5f32);

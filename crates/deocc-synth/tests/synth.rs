@@ -417,4 +417,25 @@ fn task_scenes_hide_what_their_benchmarks_need() {
             again.cameras[0].world_from_camera
         );
     }
+    // place-v2: the same promise with twice the clutter.
+    let things = |s: &deocc_synth::scene::Scene| {
+        s.objects
+            .iter()
+            .filter(|o| {
+                !o.category.is_structure() && o.category != deocc_synth::shapes::Category::Table
+            })
+            .count()
+    };
+    let dense = deocc_synth::dataset::place_v2();
+    for (&seed, &sparse_seed) in dense.seeds[..2].iter().zip(&place.seeds[..2]) {
+        let s = deocc_synth::generate::generate_scene(&dense.config, seed).unwrap();
+        assert!(hidden_free_fraction(&s) >= 0.3, "seed {seed}");
+        let sparse = deocc_synth::generate::generate_scene(&place.config, sparse_seed).unwrap();
+        assert!(things(&sparse) <= 10, "place-v1 seed {sparse_seed}");
+        assert!(
+            things(&s) > 10,
+            "place-v2 seed {seed}: {} things",
+            things(&s)
+        );
+    }
 }
