@@ -77,6 +77,9 @@ pub struct ObjectFigures {
     pub by_confidence: [(usize, usize); 4],
     /// Generated points of each predicted instance: (points, within 2 cm).
     pub by_instance: BTreeMap<u32, (usize, usize)>,
+    /// The completer's own points (model provenance) by the category of the ground-truth object
+    /// their instance was matched to (`unmatched` when none): (points, within 2 cm).
+    pub model_by_category: BTreeMap<String, (usize, usize)>,
 }
 
 /// Scores every non-structure object of a scene with hidden surface (see the module docs).
@@ -188,6 +191,7 @@ pub fn object_scores(
     }
     let mut by_confidence = [(0usize, 0usize); 4];
     let mut by_instance: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
+    let mut model_by_category: BTreeMap<String, (usize, usize)> = BTreeMap::new();
     for i in (0..prediction.len()).filter(|&i| codes[i] != Provenance::Observed.code()) {
         let close = near[i].distance_sq <= COVER_DISTANCE_M * COVER_DISTANCE_M;
         let c = prediction.confidence.as_ref().map_or(1.0, |c| c[i]);
@@ -200,12 +204,22 @@ pub fn object_scores(
         let e = by_instance.entry(pred_ids[i]).or_default();
         e.0 += 1;
         e.1 += close as usize;
+        if codes[i] == Provenance::Model.code() {
+            let category = object_of
+                .get(&pred_ids[i])
+                .and_then(|&g| categories.get(&(g as u16)))
+                .map_or("unmatched", |c| c.name());
+            let e = model_by_category.entry(category.to_string()).or_default();
+            e.0 += 1;
+            e.1 += close as usize;
+        }
     }
     Ok(ObjectFigures {
         scores,
         accuracy,
         by_confidence,
         by_instance,
+        model_by_category,
     })
 }
 
@@ -236,6 +250,9 @@ pub struct CompleterRow {
     pub hidden_recall_furniture: f64,
     /// Generated points by provenance and the fraction on a true surface.
     pub generated: BTreeMap<String, GeneratedAccuracy>,
+    /// The completer's own points (model provenance) by the category of the object they
+    /// complete: where the points off every true surface come from.
+    pub model_by_category: BTreeMap<String, GeneratedAccuracy>,
     /// Generated points by confidence bin and the fraction on a true surface (whether the
     /// confidence means what it says).
     pub generated_by_confidence: Vec<ConfidenceBin>,
@@ -259,6 +276,24 @@ pub struct ObjectReport {
     pub recall_vs_rules_furniture: BTreeMap<String, Comparison>,
 }
 
+/// (points, within 2 cm) counts as [`GeneratedAccuracy`] rows.
+fn accuracy_table(
+    counts: &BTreeMap<String, (usize, usize)>,
+) -> BTreeMap<String, GeneratedAccuracy> {
+    counts
+        .iter()
+        .map(|(name, &(points, close))| {
+            (
+                name.clone(),
+                GeneratedAccuracy {
+                    points,
+                    within_2cm: close as f64 / points.max(1) as f64,
+                },
+            )
+        })
+        .collect()
+}
+
 /// `deocc eval objects`: every named chain on the same scenes of `preset` (bench-v1, or
 /// scenes of its config with other seeds) with the default segmenter, plane fill off; `tick`
 /// after each scene.
@@ -279,6 +314,8 @@ pub fn object_benchmark(
     let segmenter = ConvexitySegmenter::default();
     let mut per_chain: Vec<Vec<ObjectScore>> = vec![Vec::new(); chains.len() + 1];
     let mut generated: Vec<BTreeMap<String, (usize, usize)>> =
+        vec![BTreeMap::new(); chains.len() + 1];
+    let mut model_by_category: Vec<BTreeMap<String, (usize, usize)>> =
         vec![BTreeMap::new(); chains.len() + 1];
     let mut timing = vec![(0usize, 0f64); chains.len() + 1];
     let mut bins = vec![[(0usize, 0usize); 4]; chains.len() + 1];
@@ -329,6 +366,11 @@ pub fn object_benchmark(
                     gated: was_gated,
                 });
             }
+            for (name, (pts, close)) in &fig.model_by_category {
+                let e = model_by_category[k].entry(name.clone()).or_default();
+                e.0 += pts;
+                e.1 += close;
+            }
             for (name, a) in fig.accuracy {
                 let e = generated[k].entry(name).or_default();
                 e.0 += a.points;
@@ -357,18 +399,8 @@ pub fn object_benchmark(
                 hidden_completeness_m: mean(s.iter().map(|o| o.hidden_completeness_m)),
                 hidden_recall_tabletop: of(&|o| !o.furniture),
                 hidden_recall_furniture: of(&|o| o.furniture),
-                generated: generated[k]
-                    .iter()
-                    .map(|(p, &(pts, close))| {
-                        (
-                            p.clone(),
-                            GeneratedAccuracy {
-                                points: pts,
-                                within_2cm: close as f64 / pts.max(1) as f64,
-                            },
-                        )
-                    })
-                    .collect(),
+                generated: accuracy_table(&generated[k]),
+                model_by_category: accuracy_table(&model_by_category[k]),
                 generated_by_confidence: CONFIDENCE_BINS
                     .iter()
                     .zip(&bins[k])
@@ -419,4 +451,64 @@ pub fn object_benchmark(
         recall_vs_rules_tabletop,
         recall_vs_rules_furniture,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    /// A can (ground-truth object 5) whose front is observed and whose back is hidden: its
+    /// instance's generated points cover the back's near half and stray 5 cm off the rest; a
+    /// second predicted instance with no observed point on any object is unmatched. The hidden
+    /// recall counts only the can's own points, and the completer's points are told apart by
+    /// the object they complete.
+    #[test]
+    fn own_points_score_their_object_and_model_points_are_split_by_category() {
+        let line = |y: f32, n: usize| -> Vec<Point3<f32>> {
+            (0..n)
+                .map(|i| Point3::new(i as f32 * 0.005, y, 0.0))
+                .collect()
+        };
+        // Ground truth: front (seen) and back (hidden) of object 5, 40 points each, 5 mm apart.
+        let front = line(0.0, 40);
+        let back = line(0.05, 40);
+        let mut gt = PointCloud::from_positions([front.clone(), back.clone()].concat());
+        gt.instance = Some(vec![5; 80]);
+        let seen: Vec<bool> = (0..80).map(|i| i < 40).collect();
+        // Prediction: instance 1 = the observed front, model points on the back's first half and
+        // 5 cm behind its second half; instance 2 = model points far from everything.
+        let mut positions = front.clone();
+        positions.extend(back[..20].iter().copied());
+        positions.extend(
+            back[20..]
+                .iter()
+                .map(|p| p + nalgebra::Vector3::new(0.0, 0.05, 0.0)),
+        );
+        positions.extend(line(1.0, 10));
+        let mut pred = PointCloud::from_positions(positions);
+        pred.instance = Some([vec![1u32; 80], vec![2; 10]].concat());
+        pred.generated = Some(
+            [
+                vec![Provenance::Observed.code(); 40],
+                vec![Provenance::Model.code(); 50],
+            ]
+            .concat(),
+        );
+        let categories: BTreeMap<u16, Category> = [(5, Category::Can)].into_iter().collect();
+        let f = object_scores(&pred, &gt, &seen, &categories, 0).unwrap();
+        assert_eq!(f.scores.len(), 1);
+        let can = &f.scores[0];
+        assert_eq!(can.hidden_points, 40);
+        // The back's first half is covered, and the next 3-4 points lie within 2 cm of it; the
+        // stray points are 5 cm off.
+        assert!(
+            can.hidden_recall >= 0.5 && can.hidden_recall < 0.7,
+            "{}",
+            can.hidden_recall
+        );
+        assert_eq!(f.model_by_category["can"], (40, 20));
+        assert_eq!(f.model_by_category["unmatched"], (10, 0));
+        assert_eq!(f.accuracy["model"].points, 50);
+    }
 }
