@@ -1,0 +1,24 @@
+#!/usr/bin/env python3
+"""Prints the rows of bench/objects.json (deocc eval objects): per-object hidden recall by each
+completer's own points, the paired differences against the rules completer (absolute, and
+relative to the rules' recall), and the share of generated points on a true surface."""
+import json
+import sys
+
+r = json.load(open(sys.argv[1] if len(sys.argv) > 1 else "bench/objects.json"))
+print(f"{r['benchmark']}: {r['scenes']} scenes, segmenter {r['segmenter']}")
+for row in r["rows"]:
+    gen = ", ".join(f"{k} {v['points']} points {v['within_2cm']:.3f} within 2 cm" for k, v in row["generated"].items())
+    print(f"{row['completer']:>12}  {row['objects']} objects  hidden recall {row['hidden_recall']:.3f} "
+          f"(table-top {row['hidden_recall_tabletop']:.3f}, furniture {row['hidden_recall_furniture']:.3f})  "
+          f"completeness {row['hidden_completeness_m'] * 100:.2f} cm  {row['objects_per_second']:.1f} objects/s  [{gen}]")
+    by = row.get("model_by_category", {})
+    if by:
+        print("              GL-DoT points by object: " + ", ".join(
+            f"{k} {v['points']} ({v['within_2cm']:.2f})" for k, v in sorted(by.items(), key=lambda kv: -kv[1]["points"])))
+for group in ("", "_tabletop", "_furniture"):
+    for name, c in r[f"recall_vs_rules{group}"].items():
+        rel = lambda x: x / c["baseline"] if c["baseline"] else float("nan")
+        print(f"{name} vs rules{group or ' (all)'}: {c['method']:.3f} vs {c['baseline']:.3f}, "
+              f"{c['difference']:+.3f} [{c['ci95'][0]:+.3f}, {c['ci95'][1]:+.3f}] "
+              f"= {rel(c['difference']):+.1%} [{rel(c['ci95'][0]):+.1%}, {rel(c['ci95'][1]):+.1%}] of the rules' recall")
