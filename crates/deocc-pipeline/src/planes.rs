@@ -17,7 +17,7 @@ use deocc_geometry::{PointCloud, Provenance};
 use deocc_io::scene::SceneInput;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
-use crate::carve::hidden_in_views;
+use crate::carve::{evidence, Evidence};
 
 #[derive(Debug, Clone)]
 pub struct PlaneOptions {
@@ -30,6 +30,10 @@ pub struct PlaneOptions {
     /// Planes per instance, each fitted to the points the ones before left (a table's top and
     /// the vertical plane of its front legs).
     pub max_planes: usize,
+    /// A plane is not filled when the views see through more than this share of the cells its
+    /// points span and do not observe (a table's front legs and apron make a plane; the floor
+    /// shows between the legs).
+    pub max_seen_through: f32,
     /// Only planes at least this large (box diagonal of their points, metres) are filled.
     pub min_extent_m: f32,
     /// Pixels sampled per view and instance: every `stride`-th row and column.
@@ -46,6 +50,7 @@ impl Default for PlaneOptions {
             inlier_m: 0.015,
             min_inlier_fraction: 0.25,
             max_planes: 3,
+            max_seen_through: 0.3,
             min_extent_m: 0.8,
             stride: 3,
             max_cells: 25_000_000,
@@ -383,6 +388,7 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             );
             continue;
         }
+        let (mut fill, mut seen_through, mut unobserved) = (Vec::new(), 0usize, 0usize);
         for a in a0..=a1 {
             for b in b0..=b1 {
                 if occupied.contains(&(a, b)) {
@@ -393,13 +399,26 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
                     continue;
                 }
                 let p = origin + e1 * q.x + e2 * q.y;
-                if hidden_in_views(&p, scene, &projectors) {
-                    positions.push(p);
-                    colors.push(first.color);
-                    ids.push(first.instance_id as u32);
+                unobserved += 1;
+                match evidence(&p, scene, &projectors) {
+                    Evidence::Hidden => fill.push(p),
+                    Evidence::SeenThrough => seen_through += 1,
+                    Evidence::Observed | Evidence::Unmeasured => {}
                 }
             }
         }
+        // A plane the views see through over much of what its points span is no surface (the
+        // vertical plane of a table's front legs and apron): fill nothing of it.
+        if seen_through as f32 > opts.max_seen_through * unobserved as f32 {
+            tracing::debug!(
+                "plane of instance {}: seen through at {seen_through} of {unobserved} cells, not filled",
+                first.instance_id
+            );
+            continue;
+        }
+        colors.extend(std::iter::repeat_n(first.color, fill.len()));
+        ids.extend(std::iter::repeat_n(first.instance_id as u32, fill.len()));
+        positions.extend(fill);
     }
     out.generated = Some(vec![Provenance::PlaneFill.code(); positions.len()]);
     out.positions = positions;

@@ -764,3 +764,48 @@ fn an_observer_sees_each_stage_and_can_stop_the_run() {
     ));
     assert_eq!(stop.0.into_inner().unwrap().len(), 4);
 }
+
+/// A plane the views see through is not filled (the vertical plane of a table's front legs and
+/// apron, with the floor showing between the legs): over 12 small scenes, fewer than 0.5% of the
+/// fill's points lie 2 cm or more from every true surface, under half as many as when every
+/// plane is filled.
+#[test]
+fn planes_the_views_see_through_are_not_filled() {
+    use deocc_pipeline::planes::{complete_planes, PlaneOptions};
+    let (mut filled, mut off, mut off_unchecked) = (0usize, 0usize, 0usize);
+    for seed in 0..12u64 {
+        let cfg = SceneConfig {
+            gt_points_per_m2: 10_000.0,
+            ..config()
+        };
+        let rendered = render_full_scene(&cfg, seed).unwrap();
+        let scene = rendered.scene_input();
+        let index = deocc_geometry::KdIndex::build(&rendered.ground_truth.cloud.positions).unwrap();
+        let off_surface = |opts: &PlaneOptions| {
+            let fill = complete_planes(&scene, opts);
+            let off = fill
+                .positions
+                .iter()
+                .filter(|p| index.nearest(p).distance_sq > 0.02 * 0.02)
+                .count();
+            (fill.len(), off)
+        };
+        let (n, o) = off_surface(&PlaneOptions::default());
+        filled += n;
+        off += o;
+        off_unchecked += off_surface(&PlaneOptions {
+            max_seen_through: 1.0,
+            ..PlaneOptions::default()
+        })
+        .1;
+    }
+    assert!(filled > 100_000, "{filled} points filled");
+    assert!(
+        (off as f64) < 0.005 * filled as f64,
+        "{off} of {filled} off every surface"
+    );
+    assert!(
+        2 * off < off_unchecked,
+        "{off} against {off_unchecked} unchecked"
+    );
+}
