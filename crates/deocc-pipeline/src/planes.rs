@@ -133,16 +133,18 @@ fn instance_planes(
         let Some((normal, offset, inliers)) = fit_plane(&left, opts.inlier_m) else {
             break;
         };
-        if (inliers.len() as f32) < opts.min_inlier_fraction * n as f32 {
-            break;
-        }
+        // The next plane is fitted to what this one leaves, whether it is kept or not: the
+        // densest plane within 4 cm can be a table's front (apron and legs) and still hold less
+        // than the top does within 1.5 cm.
         left.retain(|p| (normal.dot(&p.coords) - offset).abs() > opts.inlier_m);
         let (lo, hi) = inliers
             .iter()
             .fold((inliers[0], inliers[0]), |(lo, hi), p| {
                 (lo.inf(p), hi.sup(p))
             });
-        if (hi - lo).norm() >= opts.min_extent_m {
+        if (inliers.len() as f32) >= opts.min_inlier_fraction * n as f32
+            && (hi - lo).norm() >= opts.min_extent_m
+        {
             planes.push((normal, offset, inliers));
         }
         if left.len() < 50 {
@@ -416,6 +418,12 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             );
             continue;
         }
+        tracing::debug!(
+            "plane of instance {} ({:?}): {} of {unobserved} unobserved cells filled, {seen_through} seen through",
+            first.instance_id,
+            normal,
+            fill.len()
+        );
         colors.extend(std::iter::repeat_n(first.color, fill.len()));
         ids.extend(std::iter::repeat_n(first.instance_id as u32, fill.len()));
         positions.extend(fill);
