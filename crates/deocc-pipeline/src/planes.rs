@@ -351,8 +351,10 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             )
         };
         let mut occupied: HashSet<(i32, i32)> = HashSet::new();
-        let mut flat: Vec<Point2<f32>> = Vec::new();
-        for m in &members {
+        // Each member's own hull (two tables at one height fill their tops, not the gap).
+        let mut hulls: Vec<Vec<Point2<f32>>> = Vec::new();
+        for m in members.iter().take(64) {
+            let mut flat: Vec<Point2<f32>> = Vec::new();
             for p in &m.points {
                 if (normal.dot(&p.coords) - offset).abs() > opts.inlier_m {
                     continue;
@@ -367,12 +369,15 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
                 let d = p - origin;
                 flat.push(Point2::new(d.dot(&e1), d.dot(&e2)));
             }
+            let hull = convex_hull(flat);
+            if hull.len() >= 3 {
+                hulls.push(hull);
+            }
         }
-        let hull = convex_hull(flat);
-        if hull.len() < 3 {
+        if hulls.is_empty() {
             continue;
         }
-        let (lo, hi) = hull.iter().fold(
+        let (lo, hi) = hulls.iter().flatten().fold(
             (
                 Point2::new(f32::MAX, f32::MAX),
                 Point2::new(f32::MIN, f32::MIN),
@@ -390,39 +395,52 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             );
             continue;
         }
-        let (mut fill, mut seen_through, mut unobserved) = (Vec::new(), 0usize, 0usize);
+        // Per member: the unobserved cells its hull spans and how many of them a view sees
+        // through; the hidden cells with the members whose hulls hold them (a bit each).
+        let (mut unobserved, mut seen_through) = (vec![0usize; hulls.len()], vec![0; hulls.len()]);
+        let mut hidden: Vec<(Point3<f32>, u64)> = Vec::new();
         for a in a0..=a1 {
             for b in b0..=b1 {
                 if occupied.contains(&(a, b)) {
                     continue;
                 }
                 let q = Point2::new((a as f32 + 0.5) * s, (b as f32 + 0.5) * s);
-                if !inside(&hull, &q) {
+                let holders = hulls
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, h)| inside(h, &q))
+                    .fold(0u64, |bits, (k, _)| bits | 1 << k);
+                if holders == 0 {
                     continue;
                 }
                 let p = origin + e1 * q.x + e2 * q.y;
-                unobserved += 1;
-                match evidence(&p, scene, &projectors) {
-                    Evidence::Hidden => fill.push(p),
-                    Evidence::SeenThrough => seen_through += 1,
-                    Evidence::Observed | Evidence::Unmeasured => {}
+                let e = evidence(&p, scene, &projectors);
+                for k in (0..hulls.len()).filter(|k| holders & 1 << k != 0) {
+                    unobserved[k] += 1;
+                    seen_through[k] += (e == Evidence::SeenThrough) as usize;
+                }
+                if e == Evidence::Hidden {
+                    hidden.push((p, holders));
                 }
             }
         }
         // A plane the views see through over much of what its points span is no surface (the
         // vertical plane of a table's front legs and apron): fill nothing of it.
-        if seen_through as f32 > opts.max_seen_through * unobserved as f32 {
-            tracing::debug!(
-                "plane of instance {}: seen through at {seen_through} of {unobserved} cells, not filled",
-                first.instance_id
-            );
-            continue;
-        }
+        let solid = (0..hulls.len())
+            .filter(|&k| seen_through[k] as f32 <= opts.max_seen_through * unobserved[k] as f32)
+            .fold(0u64, |bits, k| bits | 1 << k);
+        let fill: Vec<Point3<f32>> = hidden
+            .into_iter()
+            .filter(|&(_, holders)| holders & solid != 0)
+            .map(|(p, _)| p)
+            .collect();
         tracing::debug!(
-            "plane of instance {} ({:?}): {} of {unobserved} unobserved cells filled, {seen_through} seen through",
+            "plane of instance {} ({:?}): {} filled; members' unobserved cells {:?}, seen through {:?}",
             first.instance_id,
             normal,
-            fill.len()
+            fill.len(),
+            unobserved,
+            seen_through
         );
         colors.extend(std::iter::repeat_n(first.color, fill.len()));
         ids.extend(std::iter::repeat_n(first.instance_id as u32, fill.len()));
