@@ -351,8 +351,10 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             )
         };
         let mut occupied: HashSet<(i32, i32)> = HashSet::new();
-        // Each member's own hull (two tables at one height fill their tops, not the gap).
-        let mut hulls: Vec<Vec<Point2<f32>>> = Vec::new();
+        // Each member's points in the plane's frame: its own hull decides whether it is a
+        // surface (below), the joint hull of the members that are is what gets filled (a floor
+        // that a segmenter cut into pieces is filled between them).
+        let mut flats: Vec<Vec<Point2<f32>>> = Vec::new();
         for m in members.iter().take(64) {
             let mut flat: Vec<Point2<f32>> = Vec::new();
             for p in &m.points {
@@ -369,15 +371,14 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
                 let d = p - origin;
                 flat.push(Point2::new(d.dot(&e1), d.dot(&e2)));
             }
-            let hull = convex_hull(flat);
-            if hull.len() >= 3 {
-                hulls.push(hull);
-            }
+            flats.push(flat);
         }
-        if hulls.is_empty() {
+        let hulls: Vec<Vec<Point2<f32>>> = flats.iter().map(|f| convex_hull(f.clone())).collect();
+        let joint = convex_hull(flats.concat());
+        if joint.len() < 3 {
             continue;
         }
-        let (lo, hi) = hulls.iter().flatten().fold(
+        let (lo, hi) = joint.iter().fold(
             (
                 Point2::new(f32::MAX, f32::MAX),
                 Point2::new(f32::MIN, f32::MIN),
@@ -395,45 +396,47 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             );
             continue;
         }
-        // Per member: the unobserved cells its hull spans and how many of them a view sees
-        // through; the hidden cells with the members whose hulls hold them (a bit each).
+        // Per member: the unobserved cells its own hull spans and how many of them a view sees
+        // through; the hidden cells of the joint hull.
         let (mut unobserved, mut seen_through) = (vec![0usize; hulls.len()], vec![0; hulls.len()]);
-        let mut hidden: Vec<(Point3<f32>, u64)> = Vec::new();
+        let mut hidden: Vec<(Point3<f32>, Point2<f32>)> = Vec::new();
         for a in a0..=a1 {
             for b in b0..=b1 {
                 if occupied.contains(&(a, b)) {
                     continue;
                 }
                 let q = Point2::new((a as f32 + 0.5) * s, (b as f32 + 0.5) * s);
-                let holders = hulls
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, h)| inside(h, &q))
-                    .fold(0u64, |bits, (k, _)| bits | 1 << k);
-                if holders == 0 {
+                if !inside(&joint, &q) {
                     continue;
                 }
                 let p = origin + e1 * q.x + e2 * q.y;
                 let e = evidence(&p, scene, &projectors);
-                for k in (0..hulls.len()).filter(|k| holders & 1 << k != 0) {
-                    unobserved[k] += 1;
-                    seen_through[k] += (e == Evidence::SeenThrough) as usize;
+                for (k, h) in hulls.iter().enumerate() {
+                    if inside(h, &q) {
+                        unobserved[k] += 1;
+                        seen_through[k] += (e == Evidence::SeenThrough) as usize;
+                    }
                 }
                 if e == Evidence::Hidden {
-                    hidden.push((p, holders));
+                    hidden.push((p, q));
                 }
             }
         }
         // A plane the views see through over much of what its points span is no surface (the
         // vertical plane of a table's front legs and apron): fill nothing of it.
-        let solid = (0..hulls.len())
+        let solid: Vec<usize> = (0..hulls.len())
             .filter(|&k| seen_through[k] as f32 <= opts.max_seen_through * unobserved[k] as f32)
-            .fold(0u64, |bits, k| bits | 1 << k);
-        let fill: Vec<Point3<f32>> = hidden
-            .into_iter()
-            .filter(|&(_, holders)| holders & solid != 0)
-            .map(|(p, _)| p)
             .collect();
+        let fill: Vec<Point3<f32>> = if solid.len() == hulls.len() {
+            hidden.into_iter().map(|(p, _)| p).collect()
+        } else {
+            let kept = convex_hull(solid.iter().flat_map(|&k| flats[k].clone()).collect());
+            hidden
+                .into_iter()
+                .filter(|(_, q)| inside(&kept, q))
+                .map(|(p, _)| p)
+                .collect()
+        };
         tracing::debug!(
             "plane of instance {} ({:?}): {} filled; members' unobserved cells {:?}, seen through {:?}",
             first.instance_id,
