@@ -460,37 +460,50 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
 mod tests {
     use super::*;
 
+    /// `na x nb` points `origin + i a + j b`.
+    fn lattice(
+        origin: [f32; 3],
+        a: [f32; 3],
+        na: usize,
+        b: [f32; 3],
+        nb: usize,
+    ) -> Vec<Point3<f32>> {
+        let (o, a, b) = (Point3::from(origin), Vector3::from(a), Vector3::from(b));
+        (0..na)
+            .flat_map(|i| (0..nb).map(move |j| o + a * i as f32 + b * j as f32))
+            .collect()
+    }
+
     /// A table top seen at a grazing angle with its front edge (a 3 cm apron) and the upper ends
     /// of two legs in view: the fitted plane is the top's, level within 0.5 mm per metre and at
     /// its height within 0.5 mm. (A last refit on the 4 cm band tilted it by ~1 cm per metre.)
     #[test]
     fn a_table_top_is_fitted_without_its_edge_and_legs() {
         let top = 0.75f32;
-        let mut points = Vec::new();
-        for i in 0..120 {
-            for j in 0..40 {
-                points.push(Point3::new(
-                    -0.6 + i as f32 * 0.01,
-                    -0.4 + j as f32 * 0.02,
-                    top,
-                ));
-            }
-        }
+        let mut points = lattice(
+            [-0.6, -0.4, top],
+            [0.01, 0.0, 0.0],
+            120,
+            [0.0, 0.02, 0.0],
+            40,
+        );
         // The apron along the near edge, sampled densely (it faces the camera).
-        for i in 0..240 {
-            for k in 0..10 {
-                points.push(Point3::new(
-                    -0.6 + i as f32 * 0.005,
-                    -0.4,
-                    top - 0.003 * k as f32,
-                ));
-            }
-        }
+        points.extend(lattice(
+            [-0.6, -0.4, top],
+            [0.005, 0.0, 0.0],
+            240,
+            [0.0, 0.0, -0.003],
+            10,
+        ));
         // Two legs' upper ends at the near corners.
         for x in [-0.55f32, 0.55] {
-            for k in 0..40 {
-                points.push(Point3::new(x, -0.38, top - 0.03 - 0.001 * k as f32));
-            }
+            points.extend(lattice(
+                [x, -0.38, top - 0.03],
+                [0.0, 0.0, -0.001],
+                40,
+                [0.0; 3],
+                1,
+            ));
         }
         let (normal, offset, inliers) = fit_plane(&points, 0.015).expect("a plane");
         let (normal, offset) = if normal.z < 0.0 {
@@ -510,30 +523,29 @@ mod tests {
     #[test]
     fn a_table_top_is_found_behind_a_larger_front() {
         let top = 0.75f32;
-        let mut points = Vec::new();
-        for i in 0..100 {
-            for j in 0..10 {
-                points.push(Point3::new(
-                    -0.5 + i as f32 * 0.01,
-                    -0.35 + j as f32 * 0.075,
-                    top,
-                ));
-            }
-        }
+        let mut points = lattice(
+            [-0.5, -0.35, top],
+            [0.01, 0.0, 0.0],
+            100,
+            [0.0, 0.075, 0.0],
+            10,
+        );
         // The front plane y = -0.4: the apron along the top and two legs to the floor.
-        for i in 0..200 {
-            for k in 0..6 {
-                points.push(Point3::new(
-                    -0.5 + i as f32 * 0.005,
-                    -0.4,
-                    top - 0.01 * k as f32,
-                ));
-            }
-        }
+        points.extend(lattice(
+            [-0.5, -0.4, top],
+            [0.005, 0.0, 0.0],
+            200,
+            [0.0, 0.0, -0.01],
+            6,
+        ));
         for x in [-0.48f32, 0.48] {
-            for k in 0..800 {
-                points.push(Point3::new(x, -0.4, top - 0.06 - 0.0008 * k as f32));
-            }
+            points.extend(lattice(
+                [x, -0.4, top - 0.06],
+                [0.0, 0.0, -0.0008],
+                800,
+                [0.0; 3],
+                1,
+            ));
         }
         let opts = PlaneOptions::default();
         let planes = instance_planes(points, &opts);
