@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Args;
 
 #[derive(Args)]
@@ -68,6 +68,15 @@ pub struct PlaceArgs {
     /// Number of scenes (the first N of the preset's 100).
     #[arg(long, default_value_t = 100)]
     scenes: usize,
+    /// Write, for each of the first N scenes, a picture of every map against the ground truth to
+    /// DIR/place-SEED.png (panels: optimistic, conservative, rules, shipped; green placeable in
+    /// both, red false placeable, orange missed with something in the way, blue missed for want
+    /// of support, grey placeable in neither).
+    #[arg(long, value_name = "DIR")]
+    pictures: Option<PathBuf>,
+    /// How many scenes get a picture with --pictures.
+    #[arg(long, default_value_t = 12, requires = "pictures")]
+    picture_scenes: usize,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
 }
@@ -78,7 +87,32 @@ pub fn place(a: PlaceArgs) -> Result<()> {
     let preset = deocc_synth::dataset::preset(&a.preset)?;
     let n = a.scenes.min(preset.seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
-    let report = deocc_eval::place::place_benchmark(&preset, &chains, &opts, n, &mut || pb.inc(1))?;
+    if let Some(dir) = &a.pictures {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the pictures folder {}", dir.display()))?;
+    }
+    let mut left = a.picture_scenes;
+    let mut write = |seed: u64, img: deocc_robot::picture::RgbImage| {
+        let Some(dir) = &a.pictures else {
+            return Ok(());
+        };
+        if left == 0 {
+            return Ok(());
+        }
+        left -= 1;
+        let path = dir.join(format!("place-{seed}.png"));
+        img.save(&path).map_err(|e| {
+            deocc_eval::EvalError::Data(format!("cannot write {}: {e}", path.display()))
+        })
+    };
+    let picture: Option<&mut dyn FnMut(u64, deocc_robot::picture::RgbImage) -> _> =
+        if a.pictures.is_some() {
+            Some(&mut write)
+        } else {
+            None
+        };
+    let report =
+        deocc_eval::place::place_benchmark(&preset, &chains, &opts, n, picture, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())

@@ -15,8 +15,14 @@
 //! On the whole table top the cells in plain view are scored right by every map and dilute the
 //! difference; behind the clutter is where the maps differ. There the placement is chosen among
 //! the cells behind the clutter only (`success_behind`).
+//!
+//! Why a map misses truly placeable cells is split in two (`missed_blocked`,
+//! `missed_unsupported`, shares of the truly placeable cells): something the map holds lies under
+//! the dilated footprint (a completion too big, a stray point), or too little of the footprint
+//! has support (the table's fill does not reach there).
 
 use deocc_completion::CompleterChain;
+use deocc_robot::picture::{comparison_image, side_by_side, RgbImage};
 use deocc_robot::place::{
     build_map, choose_placement, compare_maps, PlaceMap, PlaceOptions, SupportPlane, UnseenSpace,
 };
@@ -46,6 +52,13 @@ pub struct ScenePlace {
     pub false_placeable_rate_behind: f64,
     pub success_behind: f64,
     pub chosen_behind: bool,
+    /// Share of the truly placeable cells the map misses because something it holds is in the
+    /// way, and because it lacks support there (NaN without truly placeable cells).
+    pub missed_blocked: f64,
+    pub missed_unsupported: f64,
+    /// The same behind the clutter.
+    pub missed_blocked_behind: f64,
+    pub missed_unsupported_behind: f64,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -64,6 +77,11 @@ pub struct PlaceRow {
     pub success_behind: Estimate,
     pub no_placement_behind: usize,
     pub iou_behind_vs_optimistic: Comparison,
+    /// Why truly placeable cells are missed (shares of them; the module's header).
+    pub missed_blocked: Estimate,
+    pub missed_unsupported: Estimate,
+    pub missed_blocked_behind: Estimate,
+    pub missed_unsupported_behind: Estimate,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -103,6 +121,13 @@ fn score(
         *p &= w;
     }
     let chosen_behind = choose_placement(&only_behind, robot, opts);
+    let share = |n: usize, of: usize| {
+        if of == 0 {
+            f64::NAN
+        } else {
+            n as f64 / of as f64
+        }
+    };
     Ok(ScenePlace {
         seed,
         iou: s.iou,
@@ -115,6 +140,10 @@ fn score(
         false_placeable_rate_behind: b.false_placeable_rate,
         chosen_behind: chosen_behind.is_some(),
         success_behind: success(chosen_behind),
+        missed_blocked: share(s.missed_blocked, s.true_placeable_cells),
+        missed_unsupported: share(s.missed_unsupported, s.true_placeable_cells),
+        missed_blocked_behind: share(b.missed_blocked, b.true_placeable_cells),
+        missed_unsupported_behind: share(b.missed_unsupported, b.true_placeable_cells),
     })
 }
 
@@ -141,12 +170,15 @@ fn behind_clutter(
 }
 
 /// `deocc eval place` on the first `scenes` of `preset` (place-v1 or place-v2) with each named
-/// chain.
+/// chain. With `picture`, each scene's maps against the ground truth (one panel a map, in the
+/// rows' order without the ground truth: [`deocc_robot::picture::comparison_image`]) are handed
+/// to it with the scene's seed.
 pub fn place_benchmark(
     preset: &deocc_synth::dataset::Preset,
     chains: &[(String, CompleterChain)],
     opts: &deocc_pipeline::PipelineOptions,
     scenes: usize,
+    mut picture: Option<&mut dyn FnMut(u64, RgbImage) -> Result<(), EvalError>>,
     tick: &mut dyn FnMut(),
 ) -> Result<PlaceReport, EvalError> {
     if preset.config.kind != deocc_synth::scene::SceneKind::Place {
@@ -221,8 +253,15 @@ pub fn place_benchmark(
         let empty = CompleterChain::default();
         let out = deocc_pipeline::run(&input, &empty, opts, &Vec::new())?;
         let mut rows = Vec::new();
+        let mut panels = Vec::new();
+        let mut panel = |m: &PlaceMap| {
+            if picture.is_some() {
+                panels.push(comparison_image(m, &truth, &workspace, 3));
+            }
+        };
         for unseen in [UnseenSpace::Free, UnseenSpace::Occupied] {
             let m = build_map(&out.observed.positions, &plane, &popts, unseen).map_err(err)?;
+            panel(&m);
             rows.push(score(
                 &m, &truth, &workspace, &behind, &robot, &popts, seed,
             )?);
@@ -236,9 +275,13 @@ pub fn place_benchmark(
                 UnseenSpace::AsPoints,
             )
             .map_err(err)?;
+            panel(&m);
             rows.push(score(
                 &m, &truth, &workspace, &behind, &robot, &popts, seed,
             )?);
+        }
+        if let Some(f) = picture.as_mut() {
+            f(seed, side_by_side(&panels, 6))?;
         }
         rows.push(score(
             &truth, &truth, &workspace, &behind, &robot, &popts, seed,
@@ -274,6 +317,14 @@ pub fn place_benchmark(
                 success_behind: estimate(&col(|s| s.success_behind), 1000, 27),
                 no_placement_behind: per[k].iter().filter(|s| !s.chosen_behind).count(),
                 iou_behind_vs_optimistic: compare(&iou_behind, &base_behind, &clusters, 1000, 28),
+                missed_blocked: estimate(&col(|s| s.missed_blocked), 1000, 29),
+                missed_unsupported: estimate(&col(|s| s.missed_unsupported), 1000, 30),
+                missed_blocked_behind: estimate(&col(|s| s.missed_blocked_behind), 1000, 31),
+                missed_unsupported_behind: estimate(
+                    &col(|s| s.missed_unsupported_behind),
+                    1000,
+                    32,
+                ),
             }
         })
         .collect();
@@ -306,7 +357,16 @@ mod tests {
             )]),
         )];
         let opts = deocc_pipeline::PipelineOptions::default();
-        let r = place_benchmark(&preset, &chains, &opts, 2, &mut || {}).unwrap();
+        let mut pictures = Vec::new();
+        let mut keep = |seed: u64, img: RgbImage| {
+            pictures.push((seed, img));
+            Ok(())
+        };
+        let r = place_benchmark(&preset, &chains, &opts, 2, Some(&mut keep), &mut || {}).unwrap();
+        // One picture a scene, a panel a map but the ground truth's.
+        assert_eq!(pictures.len(), 2);
+        assert_eq!(pictures[0].0, preset.seeds[0]);
+        assert!(pictures[0].1.width() > 3 * pictures[0].1.height() / 2);
         assert!(
             r.mean_behind_fraction > 0.2 && r.mean_behind_fraction < 0.9,
             "{}",
@@ -324,6 +384,17 @@ mod tests {
             conservative.iou_behind
         );
         assert!(conservative.iou.mean > 0.15, "{:?}", conservative.iou);
+        // The conservative map misses what it cannot see because it holds it taken; the truth
+        // misses nothing.
+        assert!(
+            conservative.missed_blocked_behind.mean > 0.9,
+            "{:?}",
+            conservative.missed_blocked_behind
+        );
+        assert_eq!(
+            truth.missed_blocked.mean + truth.missed_unsupported.mean,
+            0.0
+        );
         let optimistic = row("observed_optimistic");
         assert!(
             optimistic.false_placeable_rate_behind.mean > optimistic.false_placeable_rate.mean,

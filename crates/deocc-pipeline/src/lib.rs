@@ -180,11 +180,16 @@ pub fn run_observed(
                 .unwrap_or_default()
         })
         .collect();
-    let to_complete = occlusion::instances_to_complete(
-        &occlusion,
-        &scene.structure_ids,
-        opts.complete_unoccluded,
-    );
+    // Instances in the scene's large planes (floor and wall pieces a segmenter cut out) are not
+    // completed: the plane fill is their completion.
+    let mut not_completed = scene.structure_ids.clone();
+    if opts.skip_plane_pieces {
+        let pieces = planes::plane_pieces(scene, &planes::PlaneOptions::default(), 0.9);
+        tracing::debug!("plane pieces, not completed: {pieces:?}");
+        not_completed.extend(pieces);
+    }
+    let to_complete =
+        occlusion::instances_to_complete(&occlusion, &not_completed, opts.complete_unoccluded);
     timings.occlusion_s = t.elapsed().as_secs_f64();
     enter(observer, 2)?;
 
@@ -207,7 +212,11 @@ pub fn run_observed(
     // them; they join the cloud last (stage 6).
     let t = Instant::now();
     let fill = if opts.complete_planes {
-        planes::complete_planes(scene, &planes::PlaneOptions::default())
+        let popts = planes::PlaneOptions {
+            min_rectangularity: opts.plane_min_rectangularity,
+            ..planes::PlaneOptions::default()
+        };
+        planes::complete_planes(scene, &popts)
             .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE)
     } else {
         PointCloud::default()

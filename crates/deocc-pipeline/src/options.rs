@@ -31,6 +31,11 @@ pub struct PipelineOptions {
     /// 0.354 to 0.443 with the shipped chain, at the same share of generated points on a true
     /// surface (docs/decisions.md).
     pub complete_unoccluded: bool,
+    /// Do not complete instances that lie in one of the scene's large planes (90% of their points
+    /// within 1.5 cm of it: pieces of the floor or a wall that a segmenter cut out, the floor and
+    /// walls themselves): they have no far side, and the plane fill completes their plane
+    /// ([`crate::planes::plane_pieces`]).
+    pub skip_plane_pieces: bool,
     /// Extend completed objects whose bottom is hidden down to the surface they stand on
     /// ([`crate::support`]; posed scenes only).
     pub extend_to_support: bool,
@@ -47,6 +52,11 @@ pub struct PipelineOptions {
     /// Fill the hidden parts of large planes (floor, walls) where the views agree they are
     /// hidden ([`crate::planes`]).
     pub complete_planes: bool,
+    /// The plane fill takes a plane's smallest enclosing rectangle instead of its observed
+    /// part's convex hull when that hull fills at least this share of it (tables and rooms are
+    /// rectangles; a table's corner hidden behind things at its edge is filled), in [0, 2]
+    /// (above 1: hulls only). What the views see through is not filled either way.
+    pub plane_min_rectangularity: f32,
     /// Keep a generated point only if every view agrees it is hidden ([`crate::carve`]).
     pub carve_generated: bool,
     /// Every camera must lie within this distance of the cameras' median position (metres): one
@@ -84,12 +94,14 @@ impl Default for PipelineOptions {
             batch: 8,
             seed: 0,
             complete_unoccluded: true,
+            skip_plane_pieces: true,
             extend_to_support: true,
             revolve_upright: true,
             cuboid_upright: true,
             up: [0.0, 0.0, 1.0],
             min_visible_px: 200,
             complete_planes: true,
+            plane_min_rectangularity: 0.8,
             carve_generated: true,
             max_scene_radius_m: 50.0,
             gate_min_mean_confidence: GATE_MIN_MEAN_CONFIDENCE,
@@ -130,6 +142,12 @@ impl PipelineOptions {
             return Err(bad(
                 "view_delta_deg",
                 format!("{} is outside [0, 180]", self.view_delta_deg),
+            ));
+        }
+        if !(0.0..=2.0).contains(&self.plane_min_rectangularity) {
+            return Err(bad(
+                "plane_min_rectangularity",
+                format!("{} is outside [0, 2]", self.plane_min_rectangularity),
             ));
         }
         if !(1..=64).contains(&self.max_views_per_instance) {

@@ -4,7 +4,9 @@
 //!
 //! Each large planar instance is fitted with a plane; instances on the same plane (a floor split
 //! by a table into several segments) are filled together. Fill candidates are the cells of a grid
-//! on the plane inside the convex hull of the observed plane points that no observed point covers.
+//! on the plane inside the convex hull of the observed plane points that no observed point covers,
+//! or inside the hull's smallest enclosing rectangle when the hull nearly fills it (a table's
+//! corner hidden behind the things at its edge).
 //! A candidate is kept only if the views agree that it is hidden: every view with a measurement
 //! where it projects sees something in front of it (none sees it, none sees through it). Points so
 //! made carry [`Provenance::PlaneFill`] in the cloud's `generated` property.
@@ -34,6 +36,11 @@ pub struct PlaneOptions {
     /// points span and do not observe (a table's front legs and apron make a plane; the floor
     /// shows between the legs).
     pub max_seen_through: f32,
+    /// Tables, shelves and rooms are rectangles: when the observed part of a plane fills at least
+    /// this share of its smallest enclosing rectangle, the rectangle is filled instead of the
+    /// observed part's convex hull (corners hidden behind things at the edge). What the views see
+    /// through is never filled either way. Above 1: hulls only.
+    pub min_rectangularity: f32,
     /// Only planes at least this large (box diagonal of their points, metres) are filled.
     pub min_extent_m: f32,
     /// Pixels sampled per view and instance: every `stride`-th row and column.
@@ -51,6 +58,7 @@ impl Default for PlaneOptions {
             min_inlier_fraction: 0.25,
             max_planes: 3,
             max_seen_through: 0.3,
+            min_rectangularity: 0.8,
             min_extent_m: 0.8,
             stride: 3,
             max_cells: 25_000_000,
@@ -66,15 +74,18 @@ struct Plane {
     color: [u8; 3],
 }
 
-/// Planes of the scene's large planar instances.
-fn find_planes(scene: &SceneInput, opts: &PlaneOptions) -> Vec<Plane> {
-    let mut per: BTreeMap<u16, (Vec<Point3<f32>>, [u64; 3])> = BTreeMap::new();
+/// Sampled points of every instance (every `stride`-th row and column of each view) and the sum
+/// of their colours.
+type InstancePoints = BTreeMap<u16, (Vec<Point3<f32>>, [u64; 3])>;
+
+fn instance_points(scene: &SceneInput, stride: usize) -> InstancePoints {
+    let mut per: InstancePoints = BTreeMap::new();
     for f in &scene.frames {
         let Some(map) = &f.instances else { continue };
         let (w, h) = (map.width as usize, map.height as usize);
         let rgb = f.rgb.as_raw();
-        for v in (0..h).step_by(opts.stride.max(1)) {
-            for u in (0..w).step_by(opts.stride.max(1)) {
+        for v in (0..h).step_by(stride.max(1)) {
+            for u in (0..w).step_by(stride.max(1)) {
                 let i = v * w + u;
                 let (id, d) = (map.ids[i], f.depth.data()[i]);
                 if id == 0 || d <= 0.0 {
@@ -88,6 +99,41 @@ fn find_planes(scene: &SceneInput, opts: &PlaneOptions) -> Vec<Plane> {
             }
         }
     }
+    per
+}
+
+/// The instances that are pieces of the scene's large planes: at least `min_fraction` of their
+/// sampled points lie within `opts.inlier_m` of one plane of a large planar instance (the floor
+/// and the walls a segmenter cut into pieces, the large planar instances themselves). They have
+/// no far side for a completer to add, and the plane fill completes their plane; a table or a
+/// shelf, whose legs or boards leave the plane, is not one.
+pub fn plane_pieces(scene: &SceneInput, opts: &PlaneOptions, min_fraction: f32) -> Vec<u16> {
+    let per = instance_points(scene, opts.stride);
+    let planes = planes_of(per.clone(), opts);
+    if planes.is_empty() {
+        return Vec::new();
+    }
+    per.into_iter()
+        .filter(|(_, (points, _))| {
+            !points.is_empty()
+                && planes.iter().any(|pl| {
+                    let on = points
+                        .iter()
+                        .filter(|p| (pl.normal.dot(&p.coords) - pl.offset).abs() <= opts.inlier_m)
+                        .count();
+                    on as f32 >= min_fraction * points.len() as f32
+                })
+        })
+        .map(|(id, _)| id)
+        .collect()
+}
+
+/// Planes of the scene's large planar instances.
+fn find_planes(scene: &SceneInput, opts: &PlaneOptions) -> Vec<Plane> {
+    planes_of(instance_points(scene, opts.stride), opts)
+}
+
+fn planes_of(per: InstancePoints, opts: &PlaneOptions) -> Vec<Plane> {
     per.into_iter()
         .filter_map(|(id, (points, color_sum))| {
             if points.len() < 50 {
@@ -303,6 +349,66 @@ fn inside(hull: &[Point2<f32>], p: &Point2<f32>) -> bool {
         })
 }
 
+/// Area of a counter-clockwise polygon.
+fn polygon_area(poly: &[Point2<f32>]) -> f32 {
+    let n = poly.len();
+    (0..n)
+        .map(|i| {
+            let (a, b) = (poly[i], poly[(i + 1) % n]);
+            a.x * b.y - b.x * a.y
+        })
+        .sum::<f32>()
+        / 2.0
+}
+
+/// The smallest-area rectangle enclosing a convex hull (counter-clockwise corners): one of its
+/// sides lies on a hull edge, so every edge's direction is tried.
+fn min_area_rectangle(hull: &[Point2<f32>]) -> Option<[Point2<f32>; 4]> {
+    let n = hull.len();
+    if n < 3 {
+        return None;
+    }
+    let mut best: Option<(f32, [Point2<f32>; 4])> = None;
+    for i in 0..n {
+        let d = hull[(i + 1) % n] - hull[i];
+        let len = d.norm();
+        if len <= 1e-9 {
+            continue;
+        }
+        let u = d / len;
+        let v = nalgebra::Vector2::new(-u.y, u.x);
+        let (mut u0, mut u1, mut v0, mut v1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+        for p in hull {
+            let (a, b) = (p.coords.dot(&u), p.coords.dot(&v));
+            (u0, u1, v0, v1) = (u0.min(a), u1.max(a), v0.min(b), v1.max(b));
+        }
+        let area = (u1 - u0) * (v1 - v0);
+        if best.as_ref().is_none_or(|(a, _)| area < *a) {
+            let at = |a: f32, b: f32| Point2::from(u * a + v * b);
+            best = Some((area, [at(u0, v0), at(u1, v0), at(u1, v1), at(u0, v1)]));
+        }
+    }
+    best.map(|(_, r)| r)
+}
+
+/// What of a plane is filled: the smallest rectangle around the hull when the hull fills at
+/// least `min_rectangularity` of it, else the hull.
+fn fill_region(hull: Vec<Point2<f32>>, min_rectangularity: f32) -> Vec<Point2<f32>> {
+    let Some(r) = min_area_rectangle(&hull) else {
+        return hull;
+    };
+    let (a, b) = (polygon_area(&hull), polygon_area(&r));
+    tracing::debug!(
+        "plane hull {a:.3} m2 of its rectangle's {b:.3} m2 ({:.2})",
+        a / b.max(1e-9)
+    );
+    if a >= min_rectangularity * b {
+        r.to_vec()
+    } else {
+        hull
+    }
+}
+
 /// Points filling the hidden parts of the scene's support planes (see the module docs).
 pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
     let planes = find_planes(scene, opts);
@@ -322,6 +428,25 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
         }
     }
     let projectors: Vec<Projector> = scene.frames.iter().map(|f| f.camera.projector()).collect();
+    // Bounding planes: every camera on one side (a wall, the floor), as a normal pointing to the
+    // cameras and its offset. A rectangle's corner that a hull did not reach must not lie behind
+    // one that stands across its own plane (a floor's corner through a wall, a wall's below the
+    // floor).
+    let centres: Vec<Point3<f32>> = scene.frames.iter().map(|f| f.camera.center()).collect();
+    let bounds: Vec<(usize, Vector3<f32>, f32)> = (0..planes.len())
+        .filter(|&i| group[i] == i)
+        .filter_map(|i| {
+            let (n, o) = (planes[i].normal, planes[i].offset);
+            let sides: Vec<f32> = centres.iter().map(|c| n.dot(&c.coords) - o).collect();
+            if sides.iter().all(|d| *d > 0.0) {
+                Some((i, n, o))
+            } else if sides.iter().all(|d| *d < 0.0) {
+                Some((i, -n, -o))
+            } else {
+                None
+            }
+        })
+        .collect();
     let mut out = PointCloud::default();
     let (mut positions, mut colors, mut ids) = (Vec::new(), Vec::new(), Vec::new());
     let groups: std::collections::BTreeSet<usize> = group.iter().copied().collect();
@@ -374,7 +499,20 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             flats.push(flat);
         }
         let hulls: Vec<Vec<Point2<f32>>> = flats.iter().map(|f| convex_hull(f.clone())).collect();
-        let joint = convex_hull(flats.concat());
+        let joint_hull = convex_hull(flats.concat());
+        let joint = fill_region(joint_hull.clone(), opts.min_rectangularity);
+        let across: Vec<(Vector3<f32>, f32)> = bounds
+            .iter()
+            .filter(|(i, n, _)| group[*i] != g && n.dot(&normal).abs() < 45f32.to_radians().cos())
+            .map(|(_, n, o)| (*n, *o))
+            .collect();
+        // Outside the observed hull, only cells on the cameras' side of the planes across.
+        let allowed = |p: &Point3<f32>, q: &Point2<f32>| {
+            inside(&joint_hull, q)
+                || across
+                    .iter()
+                    .all(|(n, o)| n.dot(&p.coords) - o > -opts.inlier_m)
+        };
         if joint.len() < 3 {
             continue;
         }
@@ -410,6 +548,9 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
                     continue;
                 }
                 let p = origin + e1 * q.x + e2 * q.y;
+                if !allowed(&p, &q) {
+                    continue;
+                }
                 let e = evidence(&p, scene, &projectors);
                 for (k, h) in hulls.iter().enumerate() {
                     if inside(h, &q) {
@@ -430,7 +571,10 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
         let fill: Vec<Point3<f32>> = if solid.len() == hulls.len() {
             hidden.into_iter().map(|(p, _)| p).collect()
         } else {
-            let kept = convex_hull(solid.iter().flat_map(|&k| flats[k].clone()).collect());
+            let kept = fill_region(
+                convex_hull(solid.iter().flat_map(|&k| flats[k].clone()).collect()),
+                opts.min_rectangularity,
+            );
             hidden
                 .into_iter()
                 .filter(|(_, q)| inside(&kept, q))
@@ -564,6 +708,50 @@ mod tests {
             front.2.len() > horizontal.2.len(),
             "the front holds more points"
         );
+    }
+
+    /// A rotated table top whose corner hides behind the things at its edge: its hull fills
+    /// most of its smallest rectangle, which is the true top, and is filled; a round top's hull
+    /// (pi / 4 of its square) stays a hull.
+    #[test]
+    fn a_rectangular_top_with_a_hidden_corner_is_filled_to_its_rectangle() {
+        let (c, s) = (0.3f32.cos(), 0.3f32.sin());
+        let at = |x: f32, y: f32| Point2::new(2.0 + c * x - s * y, -1.0 + s * x + c * y);
+        // A 1.2 x 0.8 m top on a 2 cm grid, the corner x > 0.3, y > 0.1 unseen.
+        let mut seen = Vec::new();
+        for i in 0..=60 {
+            for j in 0..=40 {
+                let (x, y) = (-0.6 + 0.02 * i as f32, -0.4 + 0.02 * j as f32);
+                if !(x > 0.3 && y > 0.1) {
+                    seen.push(at(x, y));
+                }
+            }
+        }
+        let hull = convex_hull(seen);
+        let rect = min_area_rectangle(&hull).expect("a rectangle");
+        assert!((polygon_area(&rect) - 0.96).abs() < 0.01, "{rect:?}");
+        let filled = fill_region(hull.clone(), 0.8);
+        assert_eq!(filled.len(), 4);
+        for corner in [at(0.6, 0.4), at(-0.6, 0.4), at(0.6, -0.4)] {
+            assert!(
+                filled.iter().any(|q| (q - corner).norm() < 1e-3),
+                "{corner:?} not in {filled:?}"
+            );
+        }
+        // The hidden corner is inside what gets filled, and not inside the hull.
+        let hidden = at(0.5, 0.3);
+        assert!(inside(&filled, &hidden) && !inside(&hull, &hidden));
+        // Hulls only above 1.
+        assert_eq!(fill_region(hull.clone(), 1.5), hull);
+        // A round top.
+        let disc: Vec<Point2<f32>> = (0..90)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 90.0;
+                Point2::new(0.4 * a.cos(), 0.4 * a.sin())
+            })
+            .collect();
+        let disc_hull = convex_hull(disc);
+        assert_eq!(fill_region(disc_hull.clone(), 0.8), disc_hull);
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! Pictures a person would rather look at than read: gripper outlines over a rendered cloud and
 //! the placement map from above.
 
-use image::{Rgb, RgbImage};
+use image::Rgb;
+pub use image::RgbImage;
 use nalgebra::{Point3, Vector3};
 
 use crate::gripper::{Grasp, GripperConfig};
@@ -95,4 +96,57 @@ pub fn place_map_image(
         line(&mut img, [x0, y1], [x0, y0], yellow);
     }
     img
+}
+
+/// Colours of [`comparison_image`], for legends.
+pub const AGREE_PLACEABLE: [u8; 3] = [60, 180, 75];
+pub const FALSE_PLACEABLE: [u8; 3] = [230, 40, 40];
+pub const MISSED_BLOCKED: [u8; 3] = [245, 150, 40];
+pub const MISSED_UNSUPPORTED: [u8; 3] = [70, 110, 230];
+pub const AGREE_NOT_PLACEABLE: [u8; 3] = [95, 95, 95];
+
+/// A predicted map against the true one from above, `scale` pixels a cell, over the workspace
+/// (black outside it): placeable in both green, false placeable red, truly placeable but missed
+/// orange where the prediction holds something in the way and blue where it lacks support, not
+/// placeable in either grey. Image rows run from +y (top) to -y, as in [`place_map_image`].
+pub fn comparison_image(
+    pred: &PlaceMap,
+    truth: &PlaceMap,
+    workspace: &[bool],
+    scale: u32,
+) -> RgbImage {
+    let mut img = RgbImage::new(pred.nx as u32 * scale, pred.ny as u32 * scale);
+    let n = (pred.nx * pred.ny).min(truth.placeable.len());
+    for (i, &inside) in workspace.iter().enumerate().take(n) {
+        let (p, t) = (pred.placeable[i], truth.placeable[i]);
+        let c = match (inside, p, t) {
+            (false, _, _) => [0, 0, 0],
+            (true, true, true) => AGREE_PLACEABLE,
+            (true, true, false) => FALSE_PLACEABLE,
+            (true, false, true) if pred.blocked[i] => MISSED_BLOCKED,
+            (true, false, true) => MISSED_UNSUPPORTED,
+            (true, false, false) => AGREE_NOT_PLACEABLE,
+        };
+        let (x, y) = ((i % pred.nx) as u32, (pred.ny - 1 - i / pred.nx) as u32);
+        for dy in 0..scale {
+            for dx in 0..scale {
+                img.put_pixel(x * scale + dx, y * scale + dy, Rgb(c));
+            }
+        }
+    }
+    img
+}
+
+/// Images side by side with `gap` white pixels between them (rows of the tallest).
+pub fn side_by_side(images: &[RgbImage], gap: u32) -> RgbImage {
+    let w =
+        images.iter().map(|i| i.width()).sum::<u32>() + gap * images.len().saturating_sub(1) as u32;
+    let h = images.iter().map(|i| i.height()).max().unwrap_or(0);
+    let mut out = RgbImage::from_pixel(w.max(1), h.max(1), Rgb([255, 255, 255]));
+    let mut x0 = 0;
+    for im in images {
+        image::imageops::replace(&mut out, im, x0 as i64, 0);
+        x0 += im.width() + gap;
+    }
+    out
 }

@@ -539,6 +539,12 @@ pub struct MapScores {
     pub false_placeable_rate: f64,
     pub placeable_cells: usize,
     pub true_placeable_cells: usize,
+    /// Truly placeable cells the prediction misses because something it holds (a point over the
+    /// plane) lies under the dilated footprint.
+    pub missed_blocked: usize,
+    /// Truly placeable cells the prediction misses with nothing in the way: too little of the
+    /// footprint has support (no point on the plane).
+    pub missed_unsupported: usize,
 }
 
 /// Compares `pred` with `truth` over the cells where `workspace` holds.
@@ -554,6 +560,7 @@ pub fn compare_maps(
         )));
     }
     let (mut inter, mut union, mut pc, mut tc, mut bad) = (0usize, 0usize, 0usize, 0usize, 0);
+    let (mut missed_blocked, mut missed_unsupported) = (0usize, 0usize);
     for (i, _) in workspace.iter().enumerate().filter(|(_, &w)| w) {
         let (p, t) = (pred.placeable[i], truth.placeable[i]);
         inter += (p && t) as usize;
@@ -561,6 +568,13 @@ pub fn compare_maps(
         pc += p as usize;
         tc += t as usize;
         bad += (p && truth.blocked[i]) as usize;
+        if t && !p {
+            if pred.blocked[i] {
+                missed_blocked += 1;
+            } else {
+                missed_unsupported += 1;
+            }
+        }
     }
     Ok(MapScores {
         iou: if union == 0 {
@@ -571,5 +585,7 @@ pub fn compare_maps(
         false_placeable_rate: if pc == 0 { 0.0 } else { bad as f64 / pc as f64 },
         placeable_cells: pc,
         true_placeable_cells: tc,
+        missed_blocked,
+        missed_unsupported,
     })
 }

@@ -321,6 +321,25 @@ fn placement_map_over_a_table_with_a_box() {
     let same = compare_maps(&map, &map, &workspace).unwrap();
     assert_eq!(same.iou, 1.0);
     assert_eq!(same.false_placeable_rate, 0.0);
+    assert_eq!((same.missed_blocked, same.missed_unsupported), (0, 0));
+    // Why the hole's cells are missed: nothing to stand on (as the points say), or taken
+    // (unseen space occupied).
+    let unsupported = compare_maps(&as_points, &map, &workspace).unwrap();
+    assert!(unsupported.missed_unsupported > 0, "{unsupported:?}");
+    assert_eq!(unsupported.missed_blocked, 0, "{unsupported:?}");
+    let taken = compare_maps(&occupied, &map, &workspace).unwrap();
+    assert!(taken.missed_blocked > 0, "{taken:?}");
+    assert_eq!(
+        taken.missed_blocked + taken.missed_unsupported,
+        taken.true_placeable_cells
+            - occupied
+                .placeable
+                .iter()
+                .zip(&map.placeable)
+                .filter(|(&p, &t)| p && t)
+                .count(),
+        "every missed cell has one reason"
+    );
     // A map that forgot the box: placeable over it, all of those false.
     let no_box: Vec<Point3<f32>> = s.of(1);
     let blind = build_map(&no_box, &table, &opts, UnseenSpace::AsPoints).unwrap();
