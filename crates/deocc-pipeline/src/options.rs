@@ -31,10 +31,11 @@ pub struct PipelineOptions {
     /// 0.354 to 0.443 with the shipped chain, at the same share of generated points on a true
     /// surface (docs/decisions.md).
     pub complete_unoccluded: bool,
-    /// Do not complete instances that lie in one of the scene's large planes (90% of their points
-    /// within 1.5 cm of it: pieces of the floor or a wall that a segmenter cut out, the floor and
-    /// walls themselves): they have no far side, and the plane fill completes their plane
-    /// ([`crate::planes::plane_pieces`]).
+    /// Do not complete instances that lie in one of the scene's bounding planes (90% of their
+    /// points within 1.5 cm of a large plane with every camera on one side and nothing observed
+    /// behind it: the floor and the walls, and the pieces a segmenter cut them into): they have
+    /// no far side, and the plane fill completes their plane ([`crate::planes::plane_pieces`]).
+    /// A table top is completed (its underside is a surface).
     pub skip_plane_pieces: bool,
     /// Extend completed objects whose bottom is hidden down to the surface they stand on
     /// ([`crate::support`]; posed scenes only).

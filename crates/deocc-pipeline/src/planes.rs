@@ -102,14 +102,42 @@ fn instance_points(scene: &SceneInput, stride: usize) -> InstancePoints {
     per
 }
 
-/// The instances that are pieces of the scene's large planes: at least `min_fraction` of their
-/// sampled points lie within `opts.inlier_m` of one plane of a large planar instance (the floor
-/// and the walls a segmenter cut into pieces, the large planar instances themselves). They have
-/// no far side for a completer to add, and the plane fill completes their plane; a table or a
-/// shelf, whose legs or boards leave the plane, is not one.
+/// The plane as a normal pointing to the cameras and its offset, when every camera is on one side
+/// of it (a wall, the floor, a table top seen from above).
+fn facing_cameras(
+    normal: Vector3<f32>,
+    offset: f32,
+    centres: &[Point3<f32>],
+) -> Option<(Vector3<f32>, f32)> {
+    let sides: Vec<f32> = centres.iter().map(|c| normal.dot(&c.coords) - offset).collect();
+    if !sides.is_empty() && sides.iter().all(|d| *d > 0.0) {
+        Some((normal, offset))
+    } else if !sides.is_empty() && sides.iter().all(|d| *d < 0.0) {
+        Some((-normal, -offset))
+    } else {
+        None
+    }
+}
+
+/// The instances that are pieces of the scene's bounding planes: at least `min_fraction` of their
+/// sampled points lie within `opts.inlier_m` of one plane of a large planar instance that has
+/// every camera on one side and (almost) nothing observed behind it (the floor and the walls, and
+/// the pieces a segmenter cut them into). They have no far side for a completer to add, and the
+/// plane fill completes their plane. A table top is no bounding plane (its legs and the floor
+/// lie below it): its underside is completed.
 pub fn plane_pieces(scene: &SceneInput, opts: &PlaneOptions, min_fraction: f32) -> Vec<u16> {
     let per = instance_points(scene, opts.stride);
-    let planes = planes_of(per.clone(), opts);
+    let centres: Vec<Point3<f32>> = scene.frames.iter().map(|f| f.camera.center()).collect();
+    let all: Vec<Point3<f32>> = per.values().flat_map(|(p, _)| p.iter().copied()).collect();
+    let planes: Vec<Plane> = planes_of(per.clone(), opts)
+        .into_iter()
+        .filter(|pl| {
+            facing_cameras(pl.normal, pl.offset, &centres).is_some_and(|(n, o)| {
+                let behind = all.iter().filter(|p| n.dot(&p.coords) - o < -0.03).count();
+                behind as f32 <= 0.005 * all.len() as f32
+            })
+        })
+        .collect();
     if planes.is_empty() {
         return Vec::new();
     }
@@ -436,15 +464,7 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
     let bounds: Vec<(usize, Vector3<f32>, f32)> = (0..planes.len())
         .filter(|&i| group[i] == i)
         .filter_map(|i| {
-            let (n, o) = (planes[i].normal, planes[i].offset);
-            let sides: Vec<f32> = centres.iter().map(|c| n.dot(&c.coords) - o).collect();
-            if sides.iter().all(|d| *d > 0.0) {
-                Some((i, n, o))
-            } else if sides.iter().all(|d| *d < 0.0) {
-                Some((i, -n, -o))
-            } else {
-                None
-            }
+            facing_cameras(planes[i].normal, planes[i].offset, &centres).map(|(n, o)| (i, n, o))
         })
         .collect();
     let mut out = PointCloud::default();

@@ -809,3 +809,41 @@ fn planes_the_views_see_through_are_not_filled() {
         "{off} against {off_unchecked} unchecked"
     );
 }
+
+/// Plane pieces on rendered scenes with ground-truth masks: the floor and the walls that show are
+/// pieces (nothing lies behind them), tables are not (their legs and the floor lie below the
+/// top), nor is any table-top object.
+#[test]
+fn floors_and_walls_are_plane_pieces_tables_are_not() {
+    use deocc_pipeline::planes::{plane_pieces, PlaneOptions};
+    let (mut structure, mut structure_found, mut tables) = (0, 0, 0);
+    for seed in 0..6u64 {
+        let rendered = render_full_scene(&config(), seed).unwrap();
+        let scene = rendered.scene_input();
+        let pieces = plane_pieces(&scene, &PlaneOptions::default(), 0.9);
+        for o in &rendered.scene.objects {
+            let name = o.category.name();
+            let seen = scene.frames.iter().any(|f| {
+                f.instances
+                    .as_ref()
+                    .is_some_and(|m| m.ids.iter().filter(|&&i| i == o.instance_id).count() > 2000)
+            });
+            if (name == "floor" || name == "wall") && seen {
+                structure += 1;
+                structure_found += pieces.contains(&o.instance_id) as usize;
+            } else if name != "floor" && name != "wall" {
+                tables += (name == "table") as usize;
+                assert!(
+                    !pieces.contains(&o.instance_id),
+                    "seed {seed}: {name} {} taken for a plane piece",
+                    o.instance_id
+                );
+            }
+        }
+    }
+    assert!(tables >= 3, "{tables} tables");
+    assert!(
+        structure >= 6 && structure_found == structure,
+        "{structure_found} of {structure} floors and walls found"
+    );
+}
