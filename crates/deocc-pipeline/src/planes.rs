@@ -109,7 +109,10 @@ fn facing_cameras(
     offset: f32,
     centres: &[Point3<f32>],
 ) -> Option<(Vector3<f32>, f32)> {
-    let sides: Vec<f32> = centres.iter().map(|c| normal.dot(&c.coords) - offset).collect();
+    let sides: Vec<f32> = centres
+        .iter()
+        .map(|c| normal.dot(&c.coords) - offset)
+        .collect();
     if !sides.is_empty() && sides.iter().all(|d| *d > 0.0) {
         Some((normal, offset))
     } else if !sides.is_empty() && sides.iter().all(|d| *d < 0.0) {
