@@ -184,7 +184,11 @@ pub fn run_observed(
     // completed: the plane fill is their completion.
     let mut not_completed = scene.structure_ids.clone();
     if opts.skip_plane_pieces {
-        let pieces = planes::plane_pieces(scene, &planes::PlaneOptions::default(), 0.9);
+        let pieces = planes::plane_pieces(
+            scene,
+            &planes::PlaneOptions::default(),
+            opts.plane_piece_min_fraction,
+        );
         tracing::debug!("plane pieces, not completed: {pieces:?}");
         not_completed.extend(pieces);
     }

@@ -37,6 +37,9 @@ pub struct PipelineOptions {
     /// no far side, and the plane fill completes their plane ([`crate::planes::plane_pieces`]).
     /// A table top is completed (its underside is a surface).
     pub skip_plane_pieces: bool,
+    /// The share of an instance's points that must lie in a bounding plane for it to be a plane
+    /// piece, in (0, 1].
+    pub plane_piece_min_fraction: f32,
     /// Extend completed objects whose bottom is hidden down to the surface they stand on
     /// ([`crate::support`]; posed scenes only).
     pub extend_to_support: bool,
@@ -96,6 +99,7 @@ impl Default for PipelineOptions {
             seed: 0,
             complete_unoccluded: true,
             skip_plane_pieces: true,
+            plane_piece_min_fraction: 0.9,
             extend_to_support: true,
             revolve_upright: true,
             cuboid_upright: true,
@@ -143,6 +147,12 @@ impl PipelineOptions {
             return Err(bad(
                 "view_delta_deg",
                 format!("{} is outside [0, 180]", self.view_delta_deg),
+            ));
+        }
+        if !(self.plane_piece_min_fraction > 0.0 && self.plane_piece_min_fraction <= 1.0) {
+            return Err(bad(
+                "plane_piece_min_fraction",
+                format!("{} is outside (0, 1]", self.plane_piece_min_fraction),
             ));
         }
         if !(0.0..=2.0).contains(&self.plane_min_rectangularity) {

@@ -660,6 +660,14 @@ fn options_from_json_are_checked() {
             r#"{"gate_max_seen_through_fraction": -0.1}"#,
             "gate_max_seen_through_fraction",
         ),
+        (
+            r#"{"plane_min_rectangularity": 3}"#,
+            "plane_min_rectangularity",
+        ),
+        (
+            r#"{"plane_piece_min_fraction": 0}"#,
+            "plane_piece_min_fraction",
+        ),
     ] {
         std::fs::write(&path, text).unwrap();
         let e = PipelineOptions::from_json_file(&path)
