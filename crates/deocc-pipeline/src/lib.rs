@@ -180,15 +180,17 @@ pub fn run_observed(
                 .unwrap_or_default()
         })
         .collect();
-    // Instances in the scene's large planes (floor and wall pieces a segmenter cut out) are not
-    // completed: the plane fill is their completion.
+    // Instances lying in the scene's bounding planes (the floor, the walls, and the pieces a
+    // segmenter cut them into) are not completed: the plane fill is their completion.
+    let popts = planes::PlaneOptions {
+        min_rectangularity: opts.plane_min_rectangularity,
+        ..planes::PlaneOptions::default()
+    };
+    let found = (opts.skip_plane_pieces || opts.complete_planes)
+        .then(|| planes::ScenePlanes::find(scene, &popts));
     let mut not_completed = scene.structure_ids.clone();
-    if opts.skip_plane_pieces {
-        let pieces = planes::plane_pieces(
-            scene,
-            &planes::PlaneOptions::default(),
-            opts.plane_piece_min_fraction,
-        );
+    if let (true, Some(found)) = (opts.skip_plane_pieces, &found) {
+        let pieces = planes::plane_pieces(scene, found, &popts, opts.plane_piece_min_fraction);
         tracing::debug!("plane pieces, not completed: {pieces:?}");
         not_completed.extend(pieces);
     }
@@ -215,12 +217,8 @@ pub fn run_observed(
     // The support planes' hidden parts first: the support and revolve stages stand objects on
     // them; they join the cloud last (stage 6).
     let t = Instant::now();
-    let fill = if opts.complete_planes {
-        let popts = planes::PlaneOptions {
-            min_rectangularity: opts.plane_min_rectangularity,
-            ..planes::PlaneOptions::default()
-        };
-        planes::complete_planes(scene, &popts)
+    let fill = if let (true, Some(found)) = (opts.complete_planes, &found) {
+        planes::complete_found_planes(scene, found, &popts)
             .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE)
     } else {
         PointCloud::default()

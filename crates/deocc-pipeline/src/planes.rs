@@ -128,12 +128,18 @@ fn facing_cameras(
 /// the pieces a segmenter cut them into). They have no far side for a completer to add, and the
 /// plane fill completes their plane. A table top is no bounding plane (its legs and the floor
 /// lie below it): its underside is completed.
-pub fn plane_pieces(scene: &SceneInput, opts: &PlaneOptions, min_fraction: f32) -> Vec<u16> {
-    let per = instance_points(scene, opts.stride);
+pub fn plane_pieces(
+    scene: &SceneInput,
+    found: &ScenePlanes,
+    opts: &PlaneOptions,
+    min_fraction: f32,
+) -> Vec<u16> {
+    let per = &found.points;
     let centres: Vec<Point3<f32>> = scene.frames.iter().map(|f| f.camera.center()).collect();
     let all: Vec<Point3<f32>> = per.values().flat_map(|(p, _)| p.iter().copied()).collect();
-    let planes: Vec<Plane> = planes_of(per.clone(), opts)
-        .into_iter()
+    let planes: Vec<&Plane> = found
+        .planes
+        .iter()
         .filter(|pl| {
             facing_cameras(pl.normal, pl.offset, &centres).is_some_and(|(n, o)| {
                 let behind = all.iter().filter(|p| n.dot(&p.coords) - o < -0.03).count();
@@ -144,7 +150,7 @@ pub fn plane_pieces(scene: &SceneInput, opts: &PlaneOptions, min_fraction: f32) 
     if planes.is_empty() {
         return Vec::new();
     }
-    per.into_iter()
+    per.iter()
         .filter(|(_, (points, _))| {
             !points.is_empty()
                 && planes.iter().any(|pl| {
@@ -155,13 +161,24 @@ pub fn plane_pieces(scene: &SceneInput, opts: &PlaneOptions, min_fraction: f32) 
                     on as f32 >= min_fraction * points.len() as f32
                 })
         })
-        .map(|(id, _)| id)
+        .map(|(id, _)| *id)
         .collect()
 }
 
-/// Planes of the scene's large planar instances.
-fn find_planes(scene: &SceneInput, opts: &PlaneOptions) -> Vec<Plane> {
-    planes_of(instance_points(scene, opts.stride), opts)
+/// The scene's large planar instances' planes, and every instance's sampled points: found once
+/// per run, for [`plane_pieces`] and [`complete_found_planes`].
+pub struct ScenePlanes {
+    points: InstancePoints,
+    planes: Vec<Plane>,
+}
+
+impl ScenePlanes {
+    /// Fits the planes (only `opts`' sampling and fitting fields matter).
+    pub fn find(scene: &SceneInput, opts: &PlaneOptions) -> Self {
+        let points = instance_points(scene, opts.stride);
+        let planes = planes_of(points.clone(), opts);
+        Self { points, planes }
+    }
 }
 
 fn planes_of(per: InstancePoints, opts: &PlaneOptions) -> Vec<Plane> {
@@ -442,7 +459,16 @@ fn fill_region(hull: Vec<Point2<f32>>, min_rectangularity: f32) -> Vec<Point2<f3
 
 /// Points filling the hidden parts of the scene's support planes (see the module docs).
 pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
-    let planes = find_planes(scene, opts);
+    complete_found_planes(scene, &ScenePlanes::find(scene, opts), opts)
+}
+
+/// [`complete_planes`] on planes already found.
+pub fn complete_found_planes(
+    scene: &SceneInput,
+    found: &ScenePlanes,
+    opts: &PlaneOptions,
+) -> PointCloud {
+    let planes = &found.planes;
     // Group coplanar instances (normals within 5 degrees, offsets within 3 cm).
     let mut group: Vec<usize> = (0..planes.len()).collect();
     for i in 0..planes.len() {
@@ -530,11 +556,12 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
             .map(|(_, n, o)| (*n, *o))
             .collect();
         // Outside the observed hull, only cells on the cameras' side of the planes across.
+        // (The few planes across are checked before the hull's every edge.)
         let allowed = |p: &Point3<f32>, q: &Point2<f32>| {
-            inside(&joint_hull, q)
-                || across
-                    .iter()
-                    .all(|(n, o)| n.dot(&p.coords) - o > -opts.inlier_m)
+            across
+                .iter()
+                .all(|(n, o)| n.dot(&p.coords) - o > -opts.inlier_m)
+                || inside(&joint_hull, q)
         };
         if joint.len() < 3 {
             continue;

@@ -823,12 +823,13 @@ fn planes_the_views_see_through_are_not_filled() {
 /// top), nor is any table-top object.
 #[test]
 fn floors_and_walls_are_plane_pieces_tables_are_not() {
-    use deocc_pipeline::planes::{plane_pieces, PlaneOptions};
+    use deocc_pipeline::planes::{plane_pieces, PlaneOptions, ScenePlanes};
     let (mut structure, mut structure_found, mut tables) = (0, 0, 0);
     for seed in 0..6u64 {
         let rendered = render_full_scene(&config(), seed).unwrap();
         let scene = rendered.scene_input();
-        let pieces = plane_pieces(&scene, &PlaneOptions::default(), 0.9);
+        let opts = PlaneOptions::default();
+        let pieces = plane_pieces(&scene, &ScenePlanes::find(&scene, &opts), &opts, 0.9);
         for o in &rendered.scene.objects {
             let name = o.category.name();
             let seen = scene.frames.iter().any(|f| {
