@@ -91,26 +91,23 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create the pictures folder {}", dir.display()))?;
     }
-    let mut left = a.picture_scenes;
     let mut write = |seed: u64, img: deocc_robot::picture::RgbImage| {
         let Some(dir) = &a.pictures else {
             return Ok(());
         };
-        if left == 0 {
-            return Ok(());
-        }
-        left -= 1;
         let path = dir.join(format!("place-{seed}.png"));
         img.save(&path).map_err(|e| {
             deocc_eval::EvalError::Data(format!("cannot write {}: {e}", path.display()))
         })
     };
-    let picture: Option<&mut dyn FnMut(u64, deocc_robot::picture::RgbImage) -> _> =
-        if a.pictures.is_some() {
-            Some(&mut write)
-        } else {
-            None
-        };
+    let picture: Option<(
+        usize,
+        &mut dyn FnMut(u64, deocc_robot::picture::RgbImage) -> _,
+    )> = if a.pictures.is_some() {
+        Some((a.picture_scenes, &mut write))
+    } else {
+        None
+    };
     let report =
         deocc_eval::place::place_benchmark(&preset, &chains, &opts, n, picture, &mut || pb.inc(1))?;
     pb.finish_and_clear();

@@ -170,15 +170,19 @@ fn behind_clutter(
 }
 
 /// `deocc eval place` on the first `scenes` of `preset` (place-v1 or place-v2) with each named
-/// chain. With `picture`, each scene's maps against the ground truth (one panel a map, in the
-/// rows' order without the ground truth: [`deocc_robot::picture::comparison_image`]) are handed
-/// to it with the scene's seed.
+/// chain. With `picture = Some((m, f))`, the first `m` scenes' maps against the ground truth (one
+/// panel a map, in the rows' order without the ground truth:
+/// [`deocc_robot::picture::comparison_image`]) are handed to `f` with the scene's seed; the other
+/// scenes are not drawn.
 pub fn place_benchmark(
     preset: &deocc_synth::dataset::Preset,
     chains: &[(String, CompleterChain)],
     opts: &deocc_pipeline::PipelineOptions,
     scenes: usize,
-    mut picture: Option<&mut dyn FnMut(u64, RgbImage) -> Result<(), EvalError>>,
+    mut picture: Option<(
+        usize,
+        &mut dyn FnMut(u64, RgbImage) -> Result<(), EvalError>,
+    )>,
     tick: &mut dyn FnMut(),
 ) -> Result<PlaceReport, EvalError> {
     if preset.config.kind != deocc_synth::scene::SceneKind::Place {
@@ -202,7 +206,8 @@ pub fn place_benchmark(
     let mut per: Vec<Vec<ScenePlace>> = vec![Vec::new(); names.len()];
     let mut hidden = Vec::new();
     let mut behind_share = Vec::new();
-    for &seed in &preset.seeds[..n] {
+    for (i, &seed) in preset.seeds[..n].iter().enumerate() {
+        let draw = picture.as_ref().is_some_and(|(m, _)| i < *m);
         let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         let table = rendered
             .scene
@@ -255,7 +260,7 @@ pub fn place_benchmark(
         let mut rows = Vec::new();
         let mut panels = Vec::new();
         let mut panel = |m: &PlaceMap| {
-            if picture.is_some() {
+            if draw {
                 panels.push(comparison_image(m, &truth, &workspace, 3));
             }
         };
@@ -280,7 +285,7 @@ pub fn place_benchmark(
                 &m, &truth, &workspace, &behind, &robot, &popts, seed,
             )?);
         }
-        if let Some(f) = picture.as_mut() {
+        if let (true, Some((_, f))) = (draw, picture.as_mut()) {
             f(seed, side_by_side(&panels, 6))?;
         }
         rows.push(score(
@@ -362,8 +367,10 @@ mod tests {
             pictures.push((seed, img));
             Ok(())
         };
-        let r = place_benchmark(&preset, &chains, &opts, 2, Some(&mut keep), &mut || {}).unwrap();
-        // One picture a scene, a panel a map but the ground truth's.
+        let r =
+            place_benchmark(&preset, &chains, &opts, 3, Some((2, &mut keep)), &mut || {}).unwrap();
+        // One picture a scene for the first two scenes only, a panel a map but the ground
+        // truth's.
         assert_eq!(pictures.len(), 2);
         assert_eq!(pictures[0].0, preset.seeds[0]);
         assert!(pictures[0].1.width() > 3 * pictures[0].1.height() / 2);
