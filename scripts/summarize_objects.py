@@ -16,6 +16,18 @@ for row in r["rows"]:
     if by:
         print("              GL-DoT points by object: " + ", ".join(
             f"{k} {v['points']} ({v['within_2cm']:.2f})" for k, v in sorted(by.items(), key=lambda kv: -kv[1]["points"])))
+    dist = row.get("model_by_distance", [])
+    if sum(b["points"] for b in dist):
+        total = sum(b["points"] for b in dist)
+        edges = [b["distance_up_to_m"] for b in dist]
+        names = [f"<= {e * 100:.0f} cm" if e is not None else "farther" for e in edges]
+        print("              GL-DoT points by distance to a true surface: " + ", ".join(
+            f"{n} {b['points'] / total:.2f}" for n, b in zip(names, dist)))
+    widths = row.get("model_by_crop_width", [])
+    if sum(b["points"] for b in widths):
+        print("              GL-DoT points by widest crop: " + ", ".join(
+            (f"<= {b['crop_width_up_to_m']:.2f} m" if b["crop_width_up_to_m"] is not None else "wider")
+            + f" {b['instances']} instances {b['points']} points ({b['within_2cm']:.2f})" for b in widths))
 for group in ("", "_tabletop", "_furniture"):
     for name, c in r[f"recall_vs_rules{group}"].items():
         rel = lambda x: x / c["baseline"] if c["baseline"] else float("nan")

@@ -201,6 +201,11 @@ pub struct ExportArgs {
     /// --keep-prior true|false`).
     #[arg(long)]
     keep_prior: Option<bool>,
+    /// Samples averaged per completion, odd ones on the crop mirrored left to right (test-time
+    /// augmentation); choose it on the validation pairs (`deocc eval amodal --split val
+    /// --samples N`). Default: the run's.
+    #[arg(long)]
+    samples: Option<usize>,
 }
 
 /// Ships a run's EMA weights in half precision (half the size, same completions to within f16
@@ -212,6 +217,7 @@ pub fn export(a: ExportArgs) -> Result<()> {
         &deocc_model::export::ExportOptions {
             mask_threshold: a.mask_threshold,
             keep_prior: a.keep_prior,
+            samples: a.samples,
         },
     )?;
     println!("exported {} -> {}", a.run.display(), out.display());

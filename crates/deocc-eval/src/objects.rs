@@ -55,6 +55,31 @@ pub struct GeneratedAccuracy {
     pub within_2cm: f64,
 }
 
+/// Upper edges (metres) of the distance bins of [`ObjectFigures::model_by_distance`]: how far off
+/// the completer's points are that miss a true surface.
+pub const DISTANCE_BINS_M: [f32; 5] = [0.02, 0.05, 0.10, 0.20, f32::INFINITY];
+
+/// Upper edges (metres) of the crop-width bins of [`CompleterRow::model_by_crop_width`]: a crop
+/// of width w at 64 px is w / 64 a pixel, and a relative depth error e is e * w metres.
+pub const CROP_WIDTH_BINS_M: [f32; 4] = [0.25, 0.5, 1.0, f32::INFINITY];
+
+/// The completer's points whose nearest true surface is within a distance bin.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct DistanceBin {
+    pub distance_up_to_m: f32,
+    pub points: usize,
+}
+
+/// The completer's points of the instances whose widest completed crop is in a width bin, and
+/// how many lie on a true surface.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct CropWidthBin {
+    pub crop_width_up_to_m: f32,
+    pub instances: usize,
+    pub points: usize,
+    pub within_2cm: f64,
+}
+
 /// Upper edges of the confidence bins of [`ObjectFigures::by_confidence`].
 pub const CONFIDENCE_BINS: [f32; 4] = [0.5, 0.7, 0.9, 1.0];
 
@@ -80,6 +105,11 @@ pub struct ObjectFigures {
     /// The completer's own points (model provenance) by the category of the ground-truth object
     /// their instance was matched to (`unmatched` when none): (points, within 2 cm).
     pub model_by_category: BTreeMap<String, (usize, usize)>,
+    /// The completer's own points (model provenance) by the distance to the nearest true
+    /// surface ([`DISTANCE_BINS_M`]).
+    pub model_by_distance: [usize; 5],
+    /// The completer's own points of each predicted instance: (points, within 2 cm).
+    pub model_by_instance: BTreeMap<u32, (usize, usize)>,
 }
 
 /// Scores every non-structure object of a scene with hidden surface (see the module docs).
@@ -192,6 +222,8 @@ pub fn object_scores(
     let mut by_confidence = [(0usize, 0usize); 4];
     let mut by_instance: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
     let mut model_by_category: BTreeMap<String, (usize, usize)> = BTreeMap::new();
+    let mut model_by_distance = [0usize; 5];
+    let mut model_by_instance: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
     for i in (0..prediction.len()).filter(|&i| codes[i] != Provenance::Observed.code()) {
         let close = near[i].distance_sq <= COVER_DISTANCE_M * COVER_DISTANCE_M;
         let c = prediction.confidence.as_ref().map_or(1.0, |c| c[i]);
@@ -212,6 +244,15 @@ pub fn object_scores(
             let e = model_by_category.entry(category.to_string()).or_default();
             e.0 += 1;
             e.1 += close as usize;
+            let e = model_by_instance.entry(pred_ids[i]).or_default();
+            e.0 += 1;
+            e.1 += close as usize;
+            let d = near[i].distance_sq.sqrt();
+            let bin = DISTANCE_BINS_M
+                .iter()
+                .position(|&hi| d <= hi)
+                .unwrap_or(DISTANCE_BINS_M.len() - 1);
+            model_by_distance[bin] += 1;
         }
     }
     Ok(ObjectFigures {
@@ -220,6 +261,8 @@ pub fn object_scores(
         by_confidence,
         by_instance,
         model_by_category,
+        model_by_distance,
+        model_by_instance,
     })
 }
 
@@ -253,6 +296,12 @@ pub struct CompleterRow {
     /// The completer's own points (model provenance) by the category of the object they
     /// complete: where the points off every true surface come from.
     pub model_by_category: BTreeMap<String, GeneratedAccuracy>,
+    /// The completer's own points by the distance to the nearest true surface: how far off the
+    /// ones that miss are.
+    pub model_by_distance: Vec<DistanceBin>,
+    /// The completer's own points by the width of their instance's widest completed crop
+    /// ([`CROP_WIDTH_BINS_M`]): the same relative depth error is more metres on a wider crop.
+    pub model_by_crop_width: Vec<CropWidthBin>,
     /// Generated points by confidence bin and the fraction on a true surface (whether the
     /// confidence means what it says).
     pub generated_by_confidence: Vec<ConfidenceBin>,
@@ -319,6 +368,9 @@ pub fn object_benchmark(
         vec![BTreeMap::new(); chains.len() + 1];
     let mut timing = vec![(0usize, 0f64); chains.len() + 1];
     let mut bins = vec![[(0usize, 0usize); 4]; chains.len() + 1];
+    let mut distance = vec![[0usize; 5]; chains.len() + 1];
+    // (instances, points, within 2 cm) per crop-width bin.
+    let mut widths = vec![[(0usize, 0usize, 0usize); 4]; chains.len() + 1];
     let mut gated = vec![0usize; chains.len() + 1];
     let mut study: Vec<Vec<GateStudyRow>> = vec![Vec::new(); chains.len() + 1];
     for &seed in &preset.seeds[..n] {
@@ -345,6 +397,25 @@ pub fn object_benchmark(
                 b.1 += f.1;
             }
             gated[k] += out.report.completions_gated;
+            for (d, f) in distance[k].iter_mut().zip(fig.model_by_distance) {
+                *d += f;
+            }
+            let mut widest: BTreeMap<u32, f32> = BTreeMap::new();
+            for r in out.report.completions.iter().filter(|r| r.accepted) {
+                let w = widest.entry(u32::from(r.instance_id)).or_default();
+                *w = w.max(r.metric_scale_m);
+            }
+            for (id, &(pts, close)) in &fig.model_by_instance {
+                let w = widest.get(id).copied().unwrap_or(0.0);
+                let bin = CROP_WIDTH_BINS_M
+                    .iter()
+                    .position(|&hi| w <= hi)
+                    .unwrap_or(CROP_WIDTH_BINS_M.len() - 1);
+                let e = &mut widths[k][bin];
+                e.0 += 1;
+                e.1 += pts;
+                e.2 += close;
+            }
             let mut measured: BTreeMap<u32, (Vec<f32>, f32, bool)> = BTreeMap::new();
             for r in &out.report.completions {
                 if let (Some(c), Some(x)) = (r.mean_confidence, r.seen_through_fraction) {
@@ -401,6 +472,24 @@ pub fn object_benchmark(
                 hidden_recall_furniture: of(&|o| o.furniture),
                 generated: accuracy_table(&generated[k]),
                 model_by_category: accuracy_table(&model_by_category[k]),
+                model_by_distance: DISTANCE_BINS_M
+                    .iter()
+                    .zip(&distance[k])
+                    .map(|(&hi, &points)| DistanceBin {
+                        distance_up_to_m: hi,
+                        points,
+                    })
+                    .collect(),
+                model_by_crop_width: CROP_WIDTH_BINS_M
+                    .iter()
+                    .zip(&widths[k])
+                    .map(|(&hi, &(instances, points, close))| CropWidthBin {
+                        crop_width_up_to_m: hi,
+                        instances,
+                        points,
+                        within_2cm: close as f64 / points.max(1) as f64,
+                    })
+                    .collect(),
                 generated_by_confidence: CONFIDENCE_BINS
                     .iter()
                     .zip(&bins[k])
@@ -509,6 +598,10 @@ mod tests {
         );
         assert_eq!(f.model_by_category["can"], (40, 20));
         assert_eq!(f.model_by_category["unmatched"], (10, 0));
+        // 20 on the surface, 20 at 5 cm (the 2-5 cm bin), the 10 strays about 1 m off.
+        assert_eq!(f.model_by_distance, [20, 20, 0, 0, 10]);
+        assert_eq!(f.model_by_instance[&1], (40, 20));
+        assert_eq!(f.model_by_instance[&2], (10, 0));
         assert_eq!(f.accuracy["model"].points, 50);
     }
 }

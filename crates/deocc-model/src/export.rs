@@ -15,6 +15,8 @@ pub struct ExportOptions {
     /// mask channel) otherwise.
     pub mask_threshold: Option<f32>,
     pub keep_prior: Option<bool>,
+    /// Samples averaged per completion (odd ones mirrored), in 1..=16.
+    pub samples: Option<usize>,
 }
 
 fn file_err(path: &Path, msg: impl std::fmt::Display) -> TrainError {
@@ -69,6 +71,14 @@ pub fn export_run(run: &Path, out: &Path, opts: &ExportOptions) -> Result<PathBu
     }
     if let Some(keep) = opts.keep_prior {
         config.mask_keeps_prior = keep;
+    }
+    if let Some(n) = opts.samples {
+        if !(1..=16).contains(&n) {
+            return Err(TrainError::Config(format!(
+                "--samples {n} is outside 1..=16"
+            )));
+        }
+        config.inference_samples = n;
     }
     let tensors =
         candle_core::safetensors::load(&ema, &Device::Cpu).map_err(|e| file_err(&ema, e))?;

@@ -288,32 +288,42 @@ impl GlDotCompleter {
                 r0 = self.resolution()
             )));
         }
+        // Every sample in one batch (odd ones mirrored left to right, and mirrored back): one
+        // forward pass of B x samples crops costs less than `samples` passes of B.
         let samples = self.samples.max(1);
+        let flipped = if samples > 1 {
+            let others = other_views
+                .iter()
+                .map(|v| {
+                    v.iter()
+                        .map(flip_width)
+                        .collect::<candle_core::Result<Vec<_>>>()
+                })
+                .collect::<candle_core::Result<Vec<_>>>()?;
+            Some((flip_width(cond)?, others))
+        } else {
+            None
+        };
+        let mut conds = Vec::with_capacity(samples);
+        // Sample i's crop k reads the other views at i * B + k (none where `other_views` is
+        // shorter than the batch).
+        let mut others: Vec<Vec<Tensor>> = Vec::with_capacity(samples * b);
+        for i in 0..samples {
+            let (c, o) = match (&flipped, i % 2 == 1) {
+                (Some((fc, fo)), true) => (fc, fo.as_slice()),
+                _ => (cond, other_views),
+            };
+            conds.push(c.clone());
+            others.extend((0..b).map(|k| o.get(k).cloned().unwrap_or_default()));
+        }
+        let all = self.sample_x0(&Tensor::cat(&conds, 0)?, &others, rho, steps, seed)?;
         let mut sum: Option<Tensor> = None;
         for i in 0..samples {
-            let seed_i = seed.wrapping_add(i as u64);
-            let x0 = if i % 2 == 1 {
-                let flipped_others = other_views
-                    .iter()
-                    .map(|v| {
-                        v.iter()
-                            .map(flip_width)
-                            .collect::<candle_core::Result<Vec<_>>>()
-                    })
-                    .collect::<candle_core::Result<Vec<_>>>()?;
-                flip_width(&self.sample_x0(
-                    &flip_width(cond)?,
-                    &flipped_others,
-                    rho,
-                    steps,
-                    seed_i,
-                )?)?
-            } else {
-                self.sample_x0(cond, other_views, rho, steps, seed_i)?
-            };
+            let x = all.narrow(0, i * b, b)?;
+            let x = if i % 2 == 1 { flip_width(&x)? } else { x };
             sum = Some(match sum {
-                None => x0,
-                Some(acc) => (acc + x0)?,
+                None => x,
+                Some(acc) => (acc + x)?,
             });
         }
         let x0 = match sum {

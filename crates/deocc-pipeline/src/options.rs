@@ -31,14 +31,15 @@ pub struct PipelineOptions {
     /// 0.354 to 0.443 with the shipped chain, at the same share of generated points on a true
     /// surface (docs/decisions.md).
     pub complete_unoccluded: bool,
-    /// Do not complete instances that lie in one of the scene's bounding planes (90% of their
-    /// points within 1.5 cm of a large plane with every camera on one side and nothing observed
+    /// Do not complete instances that lie in one of the scene's bounding planes
+    /// ([`Self::plane_piece_min_fraction`] of their points within 1.5 cm of a large plane with every camera on one side and nothing observed
     /// behind it: the floor and the walls, and the pieces a segmenter cut them into): they have
     /// no far side, and the plane fill completes their plane ([`crate::planes::plane_pieces`]).
     /// A table top is completed (its underside is a surface).
     pub skip_plane_pieces: bool,
     /// The share of an instance's points that must lie in a bounding plane for it to be a plane
-    /// piece, in (0, 1].
+    /// piece, in (0, 1]. 0.8 (was 0.9): floor and wall segments that hold a little of something
+    /// else are left to the fill too; chosen on bench-v1-like tuning scenes (docs/decisions.md).
     pub plane_piece_min_fraction: f32,
     /// Extend completed objects whose bottom is hidden down to the surface they stand on
     /// ([`crate::support`]; posed scenes only).
@@ -99,7 +100,7 @@ impl Default for PipelineOptions {
             seed: 0,
             complete_unoccluded: true,
             skip_plane_pieces: true,
-            plane_piece_min_fraction: 0.9,
+            plane_piece_min_fraction: 0.8,
             extend_to_support: true,
             revolve_upright: true,
             cuboid_upright: true,
