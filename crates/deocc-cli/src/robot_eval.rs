@@ -69,9 +69,9 @@ pub struct PlaceArgs {
     #[arg(long, default_value_t = 100)]
     scenes: usize,
     /// Write, for each of the first N scenes, a picture of every map against the ground truth to
-    /// DIR/place-SEED.png (panels: optimistic, conservative, rules, shipped; green placeable in
-    /// both, red false placeable, orange missed with something in the way, blue missed for want
-    /// of support, grey placeable in neither).
+    /// DIR/place-SEED.png (panels, each captioned: optimistic, conservative, rules, shipped, and
+    /// a legend; green placeable in both, red false placeable, orange missed with something in
+    /// the way, blue missed for want of support, grey placeable in neither).
     #[arg(long, value_name = "DIR")]
     pictures: Option<PathBuf>,
     /// How many scenes get a picture with --pictures.

@@ -22,7 +22,9 @@
 //! has support (the table's fill does not reach there).
 
 use deocc_completion::CompleterChain;
-use deocc_robot::picture::{comparison_image, side_by_side, RgbImage};
+use deocc_robot::picture::{
+    captioned, comparison_image, comparison_legend, side_by_side, RgbImage,
+};
 use deocc_robot::place::{
     build_map, choose_placement, compare_maps, PlaceMap, PlaceOptions, SupportPlane, UnseenSpace,
 };
@@ -171,9 +173,9 @@ fn behind_clutter(
 
 /// `deocc eval place` on the first `scenes` of `preset` (place-v1 or place-v2) with each named
 /// chain. With `picture = Some((m, f))`, the first `m` scenes' maps against the ground truth (one
-/// panel a map, in the rows' order without the ground truth:
-/// [`deocc_robot::picture::comparison_image`]) are handed to `f` with the scene's seed; the other
-/// scenes are not drawn.
+/// panel a map, captioned with its name, in the rows' order without the ground truth:
+/// [`deocc_robot::picture::comparison_image`], then the legend) are handed to `f` with the
+/// scene's seed; the other scenes are not drawn.
 pub fn place_benchmark(
     preset: &deocc_synth::dataset::Preset,
     chains: &[(String, CompleterChain)],
@@ -259,19 +261,22 @@ pub fn place_benchmark(
         let out = deocc_pipeline::run(&input, &empty, opts, &Vec::new())?;
         let mut rows = Vec::new();
         let mut panels = Vec::new();
-        let mut panel = |m: &PlaceMap| {
+        let mut panel = |m: &PlaceMap, name: &str| {
             if draw {
-                panels.push(comparison_image(m, &truth, &workspace, 3));
+                panels.push(captioned(&comparison_image(m, &truth, &workspace, 3), name));
             }
         };
-        for unseen in [UnseenSpace::Free, UnseenSpace::Occupied] {
+        for (unseen, name) in [
+            (UnseenSpace::Free, "optimistic"),
+            (UnseenSpace::Occupied, "conservative"),
+        ] {
             let m = build_map(&out.observed.positions, &plane, &popts, unseen).map_err(err)?;
-            panel(&m);
+            panel(&m, name);
             rows.push(score(
                 &m, &truth, &workspace, &behind, &robot, &popts, seed,
             )?);
         }
-        for (_, chain) in chains {
+        for (name, chain) in chains {
             let out = deocc_pipeline::run(&input, chain, opts, &Vec::new())?;
             let m = build_map(
                 &out.completed.positions,
@@ -280,12 +285,13 @@ pub fn place_benchmark(
                 UnseenSpace::AsPoints,
             )
             .map_err(err)?;
-            panel(&m);
+            panel(&m, name);
             rows.push(score(
                 &m, &truth, &workspace, &behind, &robot, &popts, seed,
             )?);
         }
         if let (true, Some((_, f))) = (draw, picture.as_mut()) {
+            panels.push(comparison_legend());
             f(seed, side_by_side(&panels, 6))?;
         }
         rows.push(score(

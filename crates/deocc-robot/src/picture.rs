@@ -137,6 +137,78 @@ pub fn comparison_image(
     img
 }
 
+/// Height of a caption strip of [`captioned`]: 8-pixel glyphs and 2 pixels above and below.
+pub const CAPTION_HEIGHT: u32 = 12;
+
+/// Writes `text` with its top-left corner at (`x`, `y`) in 8x8 glyphs (printable ASCII; other
+/// characters are left blank), clipped at the image's edges.
+pub fn draw_text(img: &mut RgbImage, x: u32, y: u32, text: &str, color: [u8; 3]) {
+    use font8x8::UnicodeFonts;
+    for (k, ch) in text.chars().enumerate() {
+        let Some(glyph) = font8x8::BASIC_FONTS.get(ch) else {
+            continue;
+        };
+        for (row, bits) in glyph.iter().enumerate() {
+            for col in 0..8 {
+                if bits >> col & 1 == 1 {
+                    let (px, py) = (x + 8 * k as u32 + col, y + row as u32);
+                    if px < img.width() && py < img.height() {
+                        img.put_pixel(px, py, Rgb(color));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `img` under a white strip of [`CAPTION_HEIGHT`] pixels that carries `caption` in black (cut
+/// at the image's width).
+pub fn captioned(img: &RgbImage, caption: &str) -> RgbImage {
+    let mut out = RgbImage::from_pixel(
+        img.width(),
+        img.height() + CAPTION_HEIGHT,
+        Rgb([255, 255, 255]),
+    );
+    image::imageops::replace(&mut out, img, 0, CAPTION_HEIGHT as i64);
+    draw_text(&mut out, 2, 2, caption, [0, 0, 0]);
+    out
+}
+
+/// A legend: one row a colour, a swatch and its name, on white.
+pub fn legend(entries: &[([u8; 3], &str)]) -> RgbImage {
+    let chars = entries
+        .iter()
+        .map(|e| e.1.chars().count())
+        .max()
+        .unwrap_or(0) as u32;
+    let mut img = RgbImage::from_pixel(
+        16 + 8 * chars + 2,
+        CAPTION_HEIGHT * entries.len().max(1) as u32,
+        Rgb([255, 255, 255]),
+    );
+    for (k, (color, name)) in entries.iter().enumerate() {
+        let y = CAPTION_HEIGHT * k as u32;
+        for dy in 2..10 {
+            for dx in 2..12 {
+                img.put_pixel(dx, y + dy, Rgb(*color));
+            }
+        }
+        draw_text(&mut img, 16, y + 2, name, [0, 0, 0]);
+    }
+    img
+}
+
+/// The legend of [`comparison_image`].
+pub fn comparison_legend() -> RgbImage {
+    legend(&[
+        (AGREE_PLACEABLE, "placeable, right"),
+        (FALSE_PLACEABLE, "false placeable"),
+        (MISSED_BLOCKED, "missed: blocked"),
+        (MISSED_UNSUPPORTED, "missed: no support"),
+        (AGREE_NOT_PLACEABLE, "not placeable, right"),
+    ])
+}
+
 /// Images side by side with `gap` white pixels between them (rows of the tallest).
 pub fn side_by_side(images: &[RgbImage], gap: u32) -> RgbImage {
     let w =
@@ -149,4 +221,35 @@ pub fn side_by_side(images: &[RgbImage], gap: u32) -> RgbImage {
         x0 += im.width() + gap;
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A caption adds its strip above the picture, leaves the picture's pixels as they were and
+    /// writes dark glyph pixels into the strip only where there is text.
+    #[test]
+    fn a_caption_sits_above_the_picture() {
+        let img = RgbImage::from_pixel(40, 10, Rgb([0, 200, 0]));
+        let out = captioned(&img, "rules");
+        assert_eq!(out.dimensions(), (40, 10 + CAPTION_HEIGHT));
+        assert!((0..40).all(|x| out.get_pixel(x, CAPTION_HEIGHT + 3).0 == [0, 200, 0]));
+        let dark = |x0: u32, x1: u32| {
+            (x0..x1)
+                .flat_map(|x| (0..CAPTION_HEIGHT).map(move |y| (x, y)))
+                .filter(|&(x, y)| out.get_pixel(x, y).0 == [0, 0, 0])
+                .count()
+        };
+        // "rules" is cut at the width: 5 glyphs from x = 2 need 42 pixels; all of the first
+        // four are inside, each with some ink.
+        for k in 0..4 {
+            assert!(dark(2 + 8 * k, 10 + 8 * k) > 3, "glyph {k}");
+        }
+        assert_eq!(captioned(&img, "   ").get_pixel(5, 5).0, [255, 255, 255]);
+        // A legend row a colour, its swatch in that colour.
+        let l = comparison_legend();
+        assert_eq!(l.height(), 5 * CAPTION_HEIGHT);
+        assert_eq!(l.get_pixel(6, CAPTION_HEIGHT + 5).0, FALSE_PLACEABLE);
+    }
 }
