@@ -32,6 +32,11 @@ a = r["candidate_auc"]
 print(f"candidate AUC: model {a['model']:.3f}, distance to prior {a['distance_to_prior']:.3f} ({a['pixels']} px)")
 print("hidden colour (MAE)    ", cmp(r["hidden_colour"]))
 for k, v in r["depth"].items():
+    if k == "by_category":
+        for cat, d in v.items():
+            for side, c in d.items():
+                print(f"  depth {cat:12s} {side:12s}", cmp(c))
+        continue
     print(f"depth {k:22s}", cmp(v))
 print("cross-view             ", cmp(r.get("cross_view")))
 s = r["steps"]

@@ -147,6 +147,15 @@ pub struct DepthFigures {
     pub far: Comparison,
     pub near_hidden_bottles_vases: Comparison,
     pub far_bottles_vases: Comparison,
+    /// Near (hidden part) and far side by category: which shapes the depth errors come from (a
+    /// crop width is ~0.1-0.3 m for table-top objects and ~0.5-1.5 m for furniture).
+    pub by_category: BTreeMap<String, CategoryDepth>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CategoryDepth {
+    pub near_hidden: Comparison,
+    pub far: Comparison,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -682,6 +691,19 @@ pub fn evaluate_amodal(
                 27,
             ),
             far_bottles_vases: cmp(&|s| s.far_model, &|s| s.far_rules, &is_bottle_vase, 29),
+            by_category: codes
+                .iter()
+                .map(|&code| {
+                    let of = |k: usize| set.category[idx[k]] == code;
+                    (
+                        category_name(code),
+                        CategoryDepth {
+                            near_hidden: cmp(&|s| s.near_model, &|s| s.near_rules, &of, 31),
+                            far: cmp(&|s| s.far_model, &|s| s.far_rules, &of, 33),
+                        },
+                    )
+                })
+                .collect(),
         },
         cross_view,
         steps,
