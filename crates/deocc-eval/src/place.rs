@@ -171,6 +171,9 @@ fn behind_clutter(
         .collect()
 }
 
+/// Where [`place_benchmark`] hands each scene's picture, with the scene's seed.
+pub type PictureSink<'a> = &'a mut dyn FnMut(u64, RgbImage) -> Result<(), EvalError>;
+
 /// `deocc eval place` on the first `scenes` of `preset` (place-v1 or place-v2) with each named
 /// chain. With `picture = Some((m, f))`, the first `m` scenes' maps against the ground truth (one
 /// panel a map, captioned with its name, in the rows' order without the ground truth:
@@ -181,10 +184,7 @@ pub fn place_benchmark(
     chains: &[(String, CompleterChain)],
     opts: &deocc_pipeline::PipelineOptions,
     scenes: usize,
-    mut picture: Option<(
-        usize,
-        &mut dyn FnMut(u64, RgbImage) -> Result<(), EvalError>,
-    )>,
+    mut picture: Option<(usize, PictureSink<'_>)>,
     tick: &mut dyn FnMut(),
 ) -> Result<PlaceReport, EvalError> {
     if preset.config.kind != deocc_synth::scene::SceneKind::Place {
