@@ -62,6 +62,10 @@ pub struct PairsArgs {
     /// Output folder for {split}-NNNNN.safetensors shards and manifest.json.
     #[arg(long)]
     out: PathBuf,
+    /// Also make pairs of objects that leave the image (tables seen from a few metres), the
+    /// crop empty outside the image as the pipeline's is. Off keeps the splits as they were.
+    #[arg(long)]
+    edge_objects: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -153,6 +157,7 @@ fn pairs(a: PairsArgs) -> Result<()> {
     create_dir(&a.out)?;
     let config = PairConfig {
         resolution: a.resolution,
+        edge_objects: a.edge_objects,
         ..PairConfig::default()
     };
     let name = format!("{split:?}").to_lowercase();

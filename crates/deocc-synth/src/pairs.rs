@@ -47,6 +47,12 @@ pub struct PairConfig {
     pub min_visible_fraction: f32,
     /// Fraction of unoccluded object views kept (they teach "nothing to add" but are plentiful).
     pub keep_unoccluded: f64,
+    /// Also make pairs of objects whose projected box leaves the image (tables seen from a
+    /// few metres, chairs at the frame's edge), and crop every pair as the pipeline does: the
+    /// crop pixels outside the image carry no colour, depth or visibility, and the object there
+    /// counts as hidden. Off by default, which keeps the existing splits as they were.
+    #[serde(default)]
+    pub edge_objects: bool,
 }
 
 impl Default for PairConfig {
@@ -59,6 +65,7 @@ impl Default for PairConfig {
             crop_scale_max: 2.2,
             min_visible_fraction: 0.08,
             keep_unoccluded: 0.3,
+            edge_objects: false,
         }
     }
 }
@@ -144,7 +151,8 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
                 continue;
             };
             let side = (u1 - u0).max(v1 - v0);
-            if side < config.min_box_px || u0 < 0.0 || v0 < 0.0 || u1 >= w || v1 >= h {
+            let leaves_image = u0 < 0.0 || v0 < 0.0 || u1 >= w || v1 >= h;
+            if side < config.min_box_px || (leaves_image && !config.edge_objects) {
                 continue;
             }
             // The crop is placed around the VISIBLE box, as the pipeline must do (it does not know
@@ -160,16 +168,30 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             .max(config.min_box_px);
             let mut jitter = || (r.random::<f32>() - 0.5) * 0.2 * crop_side;
             let (cx, cy) = ((vu0 + vu1) / 2.0 + jitter(), (vv0 + vv1) / 2.0 + jitter());
-            let crop = crop_camera(
-                camera,
-                cx - crop_side / 2.0,
-                cy - crop_side / 2.0,
-                crop_side,
-                res,
-            )?;
+            let (x0, y0) = (cx - crop_side / 2.0, cy - crop_side / 2.0);
+            let crop = crop_camera(camera, x0, y0, crop_side, res)?;
             let mut full = Frame::new(res, res);
             let inst = |ti: usize| scene.objects[tris.object[ti] as usize].instance_id;
             rasterize(&crop, &tris, 0..tris.corners.len(), &inst, &mut full);
+            // With `edge_objects`, crop pixels whose centre is outside the image hold nothing
+            // observed (the pipeline's crop leaves them empty); without it they show the scene
+            // as before (the existing splits).
+            let outside: Vec<bool> = (0..n)
+                .map(|i| {
+                    if !config.edge_objects {
+                        return false;
+                    }
+                    let step = crop_side / res as f32;
+                    let x = x0 + ((i % res as usize) as f32 + 0.5) * step;
+                    let y = y0 + ((i / res as usize) as f32 + 0.5) * step;
+                    x < 0.0 || y < 0.0 || x >= w || y >= h
+                })
+                .collect();
+            for (i, _) in outside.iter().enumerate().filter(|(_, &o)| o) {
+                full.instance[i] = 0;
+                full.depth_m[i] = 0.0;
+                full.triangle[i] = u32::MAX;
+            }
             let mut alone = Frame::new(res, res);
             rasterize(
                 &crop,

@@ -439,3 +439,64 @@ fn task_scenes_hide_what_their_benchmarks_need() {
         );
     }
 }
+
+/// With `edge_objects`, objects that leave the image make pairs too (tables seen from a few
+/// metres): more pairs, more of them tables, and the crop holds nothing outside the image (no
+/// colour, no scene depth, not visible) while the object's amodal mask goes on there.
+#[test]
+fn edge_objects_make_pairs_blank_outside_the_image() {
+    use deocc_synth::pairs::{split_scene_pairs, Split};
+    use deocc_synth::shapes::Category;
+    let plain = PairConfig::default();
+    let edge = PairConfig {
+        edge_objects: true,
+        ..PairConfig::default()
+    };
+    let (mut n_plain, mut n_edge, mut tables_plain, mut tables_edge) = (0, 0, 0, 0);
+    let mut blank_lines_with_object = 0;
+    for scene in 0..3 {
+        let a = split_scene_pairs(Split::Val, scene, &plain).unwrap();
+        let b = split_scene_pairs(Split::Val, scene, &edge).unwrap();
+        n_plain += a.len();
+        n_edge += b.len();
+        let tables = |s: &deocc_io::pairs::PairSet| {
+            s.category
+                .iter()
+                .filter(|&&c| c == Category::Table as u8)
+                .count()
+        };
+        tables_plain += tables(&a);
+        tables_edge += tables(&b);
+        let r = b.resolution as usize;
+        let px = b.pixels();
+        for k in 0..b.len() {
+            // A border line of the crop (top, bottom, left, right) with nothing observed on it.
+            let lines: [Vec<usize>; 4] = [
+                (0..r).collect(),
+                (0..r).map(|u| (r - 1) * r + u).collect(),
+                (0..r).map(|v| v * r).collect(),
+                (0..r).map(|v| v * r + r - 1).collect(),
+            ];
+            for line in &lines {
+                let blank = line.iter().all(|&p| {
+                    let i = k * px + p;
+                    b.scene_depth[i] == 0.0
+                        && b.visible_mask[i] == 0
+                        && b.crop_rgb[3 * i..3 * i + 3] == [0, 0, 0]
+                });
+                if blank && line.iter().any(|&p| b.amodal_mask[k * px + p] > 0) {
+                    blank_lines_with_object += 1;
+                }
+            }
+        }
+    }
+    assert!(n_edge > n_plain, "{n_edge} against {n_plain} pairs");
+    assert!(
+        tables_edge > tables_plain,
+        "{tables_edge} table pairs against {tables_plain}"
+    );
+    assert!(
+        blank_lines_with_object > 0,
+        "some object goes on past the image's edge"
+    );
+}
