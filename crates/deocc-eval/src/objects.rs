@@ -107,7 +107,7 @@ pub struct ObjectFigures {
     pub model_by_category: BTreeMap<String, (usize, usize)>,
     /// The completer's own points (model provenance) by the distance to the nearest true
     /// surface ([`DISTANCE_BINS_M`]).
-    pub model_by_distance: [usize; 5],
+    pub model_by_distance: [usize; DISTANCE_BINS_M.len()],
     /// The completer's own points of each predicted instance: (points, within 2 cm).
     pub model_by_instance: BTreeMap<u32, (usize, usize)>,
 }
@@ -222,7 +222,7 @@ pub fn object_scores(
     let mut by_confidence = [(0usize, 0usize); 4];
     let mut by_instance: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
     let mut model_by_category: BTreeMap<String, (usize, usize)> = BTreeMap::new();
-    let mut model_by_distance = [0usize; 5];
+    let mut model_by_distance = [0usize; DISTANCE_BINS_M.len()];
     let mut model_by_instance: BTreeMap<u32, (usize, usize)> = BTreeMap::new();
     for i in (0..prediction.len()).filter(|&i| codes[i] != Provenance::Observed.code()) {
         let close = near[i].distance_sq <= COVER_DISTANCE_M * COVER_DISTANCE_M;
@@ -368,9 +368,9 @@ pub fn object_benchmark(
         vec![BTreeMap::new(); chains.len() + 1];
     let mut timing = vec![(0usize, 0f64); chains.len() + 1];
     let mut bins = vec![[(0usize, 0usize); 4]; chains.len() + 1];
-    let mut distance = vec![[0usize; 5]; chains.len() + 1];
+    let mut distance = vec![[0usize; DISTANCE_BINS_M.len()]; chains.len() + 1];
     // (instances, points, within 2 cm) per crop-width bin.
-    let mut widths = vec![[(0usize, 0usize, 0usize); 4]; chains.len() + 1];
+    let mut widths = vec![[(0usize, 0usize, 0usize); CROP_WIDTH_BINS_M.len()]; chains.len() + 1];
     let mut gated = vec![0usize; chains.len() + 1];
     let mut study: Vec<Vec<GateStudyRow>> = vec![Vec::new(); chains.len() + 1];
     for &seed in &preset.seeds[..n] {

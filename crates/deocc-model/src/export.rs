@@ -73,13 +73,11 @@ pub fn export_run(run: &Path, out: &Path, opts: &ExportOptions) -> Result<PathBu
         config.mask_keeps_prior = keep;
     }
     if let Some(n) = opts.samples {
-        if !(1..=16).contains(&n) {
-            return Err(TrainError::Config(format!(
-                "--samples {n} is outside 1..=16"
-            )));
-        }
         config.inference_samples = n;
     }
+    config
+        .validate()
+        .map_err(|e| TrainError::Config(format!("exported config: {e}")))?;
     let tensors =
         candle_core::safetensors::load(&ema, &Device::Cpu).map_err(|e| file_err(&ema, e))?;
     for (name, t) in &tensors {
