@@ -307,6 +307,8 @@ pub struct CompleterRow {
     pub generated_by_confidence: Vec<ConfidenceBin>,
     /// Completions the quality gate rejected.
     pub completions_gated: usize,
+    /// Generated points the mirror check left out (`gate_max_depth_spread_m`).
+    pub points_spread_dropped: usize,
     /// Completed instances, their accuracy and the gate's measurements.
     pub gate_study: Vec<GateStudyRow>,
     pub objects_per_second: f64,
@@ -372,6 +374,7 @@ pub fn object_benchmark(
     // (instances, points, within 2 cm) per crop-width bin.
     let mut widths = vec![[(0usize, 0usize, 0usize); CROP_WIDTH_BINS_M.len()]; chains.len() + 1];
     let mut gated = vec![0usize; chains.len() + 1];
+    let mut spread_dropped = vec![0usize; chains.len() + 1];
     let mut study: Vec<Vec<GateStudyRow>> = vec![Vec::new(); chains.len() + 1];
     for &seed in &preset.seeds[..n] {
         let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
@@ -397,6 +400,7 @@ pub fn object_benchmark(
                 b.1 += f.1;
             }
             gated[k] += out.report.completions_gated;
+            spread_dropped[k] += out.report.points_spread_dropped;
             for (d, f) in distance[k].iter_mut().zip(fig.model_by_distance) {
                 *d += f;
             }
@@ -500,6 +504,7 @@ pub fn object_benchmark(
                     })
                     .collect(),
                 completions_gated: gated[k],
+                points_spread_dropped: spread_dropped[k],
                 gate_study: study[k].clone(),
                 objects_per_second: timing[k].0 as f64 / timing[k].1.max(1e-9),
             }

@@ -1,10 +1,15 @@
 //! Stage: completion. Each selected (instance, view) is cropped at the resolution of the first
 //! completer of the chain that does not decline it ([`CompleterChain::route`]); each completer
 //! then completes its crops in batches, every crop conditioned on the same instance's other crops
-//! it holds (cross-view conditioning with weight `rho`).
+//! it holds (cross-view conditioning with weight `rho`). With the mirror check on
+//! ([`PipelineOptions::gate_max_depth_spread_m`]) every crop is also completed mirrored left to
+//! right, in the same call, and the two answers' depths are compared pixel by pixel
+//! ([`DepthSpread`]): where a completer's answer depends on which way the crop faces, it does
+//! not know the depth there.
 
 use std::collections::BTreeMap;
 
+use deocc_completion::crop::mirror;
 use deocc_completion::{
     CompleterChain, CompletionOptions, CropCompletion, CropCondition, CropRequest,
 };
@@ -21,6 +26,35 @@ pub struct CompletedCrop {
     pub completion: CropCompletion,
     /// Index of the completer in the chain.
     pub completer: usize,
+    /// How far the completion of the mirrored crop (mirrored back) is from this one, per pixel;
+    /// `None` when the mirror check is off.
+    pub spread: Option<DepthSpread>,
+}
+
+/// Per-pixel disagreement (relative depth, the crop's units) between a completion and the
+/// completion of the mirrored crop, mirrored back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthSpread {
+    /// (r*r) |near - near'|.
+    pub near: Vec<f32>,
+    /// (r*r) |far - far'|.
+    pub far: Vec<f32>,
+}
+
+impl DepthSpread {
+    /// The spread of `a` and `b_mirrored` (the completion of the mirrored crop, still mirrored).
+    pub fn between(a: &CropCompletion, b_mirrored: &CropCompletion, r: usize) -> Self {
+        let diff = |x: &[f32], y: &[f32]| -> Vec<f32> {
+            x.iter()
+                .zip(mirror(y, r, 1))
+                .map(|(&p, q)| (p - q).abs())
+                .collect()
+        };
+        Self {
+            near: diff(&a.depth, &b_mirrored.depth),
+            far: diff(&a.back_depth, &b_mirrored.back_depth),
+        }
+    }
 }
 
 /// A crop that every completer declined, with their reasons.
@@ -79,7 +113,9 @@ pub fn complete_instances(
         rho: opts.rho,
         seed: opts.seed,
     };
+    let mirror_check = opts.gate_max_depth_spread_m > 0.0;
     let mut completions: Vec<Option<CropCompletion>> = vec![None; jobs.len()];
+    let mut spreads: Vec<Option<DepthSpread>> = vec![None; jobs.len()];
     for (k, link) in chain.links().iter().enumerate() {
         let mine: Vec<usize> = (0..jobs.len()).filter(|&j| jobs[j].0 == k).collect();
         for chunk in mine.chunks(opts.batch.max(1)) {
@@ -95,6 +131,24 @@ pub fn complete_instances(
                         .collect()
                 })
                 .collect();
+            // The mirrored crops (and their other views, mirrored) ride in the same call.
+            let (mirrored, mirrored_others): (Vec<CropCondition>, Vec<Vec<CropCondition>>) =
+                if mirror_check {
+                    chunk
+                        .iter()
+                        .zip(&others)
+                        .map(|(&j, o)| {
+                            (
+                                jobs[j].2.mirrored(),
+                                o.iter().map(|c| c.mirrored()).collect(),
+                            )
+                        })
+                        .unzip()
+                } else {
+                    (Vec::new(), Vec::new())
+                };
+            let mirrored_refs: Vec<Vec<&CropCondition>> =
+                mirrored_others.iter().map(|o| o.iter().collect()).collect();
             let requests: Vec<CropRequest<'_>> = chunk
                 .iter()
                 .zip(&others)
@@ -102,16 +156,29 @@ pub fn complete_instances(
                     condition: &jobs[j].2,
                     other_views: o,
                 })
+                .chain(
+                    mirrored
+                        .iter()
+                        .zip(&mirrored_refs)
+                        .map(|(c, o)| CropRequest {
+                            condition: c,
+                            other_views: o,
+                        }),
+                )
                 .collect();
-            let done = link.complete(&requests, &sampling)?;
-            if done.len() != chunk.len() {
+            let mut done = link.complete(&requests, &sampling)?;
+            if done.len() != requests.len() {
                 return Err(deocc_completion::CompletionError::Failed {
                     completer: link.name().into(),
-                    msg: format!("{} completions for {} crops", done.len(), chunk.len()),
+                    msg: format!("{} completions for {} crops", done.len(), requests.len()),
                 }
                 .into());
             }
-            for (&j, c) in chunk.iter().zip(done) {
+            let flipped = done.split_off(chunk.len());
+            for (i, (&j, c)) in chunk.iter().zip(done).enumerate() {
+                if let Some(m) = flipped.get(i) {
+                    spreads[j] = Some(DepthSpread::between(&c, m, jobs[j].2.resolution));
+                }
                 completions[j] = Some(c);
             }
         }
@@ -119,12 +186,14 @@ pub fn complete_instances(
     let completed = jobs
         .into_iter()
         .zip(completions)
-        .filter_map(|((completer, window, condition), completion)| {
+        .zip(spreads)
+        .filter_map(|(((completer, window, condition), completion), spread)| {
             Some(CompletedCrop {
                 window,
                 condition,
                 completion: completion?,
                 completer,
+                spread,
             })
         })
         .collect();

@@ -3,13 +3,16 @@
 //! is rejected. Then what was hidden is back-projected into world points: the near side where
 //! the object is revealed (amodal minus visible, and only where something in front hid it) and
 //! the far side (its back) wherever the object is. Every generated point carries the completer's
-//! probability that its pixel belongs to the object as its confidence.
+//! probability that its pixel belongs to the object as its confidence. With the mirror check,
+//! a point whose depth the completion of the mirrored crop puts more than a limit away (in
+//! metres, through the same fit) is not generated.
 
 use deocc_completion::{CropCompletion, Provenance};
 use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
 use deocc_geometry::PointCloud;
 use deocc_io::scene::Frame;
 
+use crate::complete::DepthSpread;
 use crate::crops::CropWindow;
 use crate::report::CompletionRecord;
 
@@ -25,8 +28,60 @@ const MIN_THICKNESS_M: f32 = 0.005;
 const MIN_FIT_INLIERS: f64 = 0.5;
 const MAX_FIT_RESIDUAL_M: f64 = 0.03;
 
+/// The mirror check of one completion: the spread of its depths and the largest spread (metres)
+/// a generated point may have.
+#[derive(Debug, Clone, Copy)]
+pub struct SpreadLimit<'a> {
+    pub spread: &'a DepthSpread,
+    pub max_m: f32,
+}
+
+/// How a completion is fused besides its alignment.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FuseOptions<'a> {
+    /// The mirror check: points whose depth the mirrored completion contradicts are left out
+    /// (counted in the record's `spread_dropped`).
+    pub spread: Option<SpreadLimit<'a>>,
+    /// Median filter radius (pixels; 0 = off) of the generated depth: each amodal pixel's near
+    /// and far depth become the median over the amodal pixels of its (2r+1)^2 window, before
+    /// the fit is applied ([`median_within`]).
+    pub median_px: usize,
+}
+
+/// The median of `values` over the `mask` pixels of each mask pixel's (2 radius + 1)^2 window
+/// (an `r x r` image); pixels outside the mask keep their value.
+pub fn median_within(values: &[f32], mask: &[bool], r: usize, radius: usize) -> Vec<f32> {
+    if radius == 0 {
+        return values.to_vec();
+    }
+    let mut out = values.to_vec();
+    let mut window = Vec::with_capacity((2 * radius + 1) * (2 * radius + 1));
+    for v in 0..r {
+        for u in 0..r {
+            let k = v * r + u;
+            if !mask[k] {
+                continue;
+            }
+            window.clear();
+            for y in v.saturating_sub(radius)..(v + radius + 1).min(r) {
+                for x in u.saturating_sub(radius)..(u + radius + 1).min(r) {
+                    let q = y * r + x;
+                    if mask[q] && values[q].is_finite() {
+                        window.push(values[q]);
+                    }
+                }
+            }
+            if !window.is_empty() {
+                let mid = window.len() / 2;
+                out[k] = *window.select_nth_unstable_by(mid, f32::total_cmp).1;
+            }
+        }
+    }
+    out
+}
+
 /// Aligns a completion's depth to the observed depth and back-projects what was hidden, each
-/// point carrying `provenance`.
+/// point carrying `provenance` ([`FuseOptions`]: the mirror check, the median filter).
 pub fn fuse_completion(
     window: &CropWindow,
     visible: &[bool],
@@ -34,7 +89,9 @@ pub fn fuse_completion(
     frame: &Frame,
     completer: &str,
     provenance: Provenance,
+    opts: &FuseOptions<'_>,
 ) -> (PointCloud, CompletionRecord) {
+    let spread = opts.spread;
     let n = window.resolution * window.resolution;
     let vis: Vec<usize> = (0..n).filter(|&k| visible[k]).collect();
     let amodal_px = completion.amodal.iter().filter(|&&a| a).count();
@@ -50,6 +107,7 @@ pub fn fuse_completion(
         mean_confidence: None,
         seen_through_fraction: None,
         gated: false,
+        spread_dropped: 0,
         accepted: false,
         reason: String::new(),
     };
@@ -63,6 +121,14 @@ pub fn fuse_completion(
         }
     };
     record.fit = Some(fit);
+    let r = window.resolution;
+    let near_depth = median_within(&completion.depth, &completion.amodal, r, opts.median_px);
+    let back_depth = median_within(
+        &completion.back_depth,
+        &completion.amodal,
+        r,
+        opts.median_px,
+    );
     // A poor fit would put generated geometry at the wrong depth: reject rather than pollute.
     if fit.alpha <= 0.0 || fit.inlier_fraction < MIN_FIT_INLIERS || fit.scale > MAX_FIT_RESIDUAL_M {
         record.reason = format!(
@@ -71,6 +137,16 @@ pub fn fuse_completion(
         );
         return (PointCloud::default(), record);
     }
+    // Relative depth to metres is the fit's scale; a spread above the limit there is a point
+    // the completer does not know.
+    let metres = fit.alpha.abs() as f32;
+    let doubtful = |k: usize, far: bool| {
+        spread.is_some_and(|s| {
+            let d = if far { &s.spread.far } else { &s.spread.near };
+            d.get(k).is_some_and(|&x| x * metres > s.max_m)
+        })
+    };
+    let mut spread_dropped = 0;
     let mut positions = Vec::new();
     let mut colors = Vec::new();
     let mut confidence = Vec::new();
@@ -99,25 +175,35 @@ pub fn fuse_completion(
         let front = if is_visible {
             obs
         } else {
-            let z = fit.apply(completion.depth[k] as f64) as f32;
+            let z = fit.apply(near_depth[k] as f64) as f32;
             if !(z.is_finite() && z > 0.05) {
                 continue;
             }
             if obs > 0.0 && obs > z - FREE_SPACE_MARGIN_M {
                 continue; // the sensor saw this pixel at or beyond the generated depth: nothing hides it
             }
+            if doubtful(k, false) {
+                // Neither side is placed: the far side hangs on this near side.
+                spread_dropped += 1;
+                continue;
+            }
             push(k, z, 1.0);
             z
         };
         // Far side (the object's back, which no view shows), behind the near side.
-        let back = fit.apply(completion.back_depth[k] as f64) as f32;
+        let back = fit.apply(back_depth[k] as f64) as f32;
         if back.is_finite()
             && back > front + MIN_THICKNESS_M
             && !(obs > 0.0 && obs > back + FREE_SPACE_MARGIN_M)
         {
-            push(k, back, 0.75);
+            if doubtful(k, true) {
+                spread_dropped += 1;
+            } else {
+                push(k, back, 0.75);
+            }
         }
     }
+    record.spread_dropped = spread_dropped;
     record.new_points = positions.len();
     record.accepted = true;
     record.reason = "ok".into();
@@ -131,4 +217,40 @@ pub fn fuse_completion(
         normals: None,
     };
     (cloud, record)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::median_within;
+
+    /// The median removes a lone spike and keeps a step; pixels outside the mask neither change
+    /// nor vote.
+    #[test]
+    fn the_median_removes_spikes_keeps_steps_and_reads_only_the_mask() {
+        let r = 7;
+        // Left 4 columns at 1, the rest at 2 (a step), one spike at (3, 1), a masked-out column 6
+        // at 100.
+        let mut values: Vec<f32> = (0..r * r)
+            .map(|k| match k % r {
+                6 => 100.0,
+                u if u < 4 => 1.0,
+                _ => 2.0,
+            })
+            .collect();
+        values[3 * r + 1] = 50.0;
+        let mask: Vec<bool> = (0..r * r).map(|k| k % r != 6).collect();
+        let out = median_within(&values, &mask, r, 1);
+        assert_eq!(out[3 * r + 1], 1.0, "spike kept");
+        for v in 1..r - 1 {
+            assert_eq!(out[v * r], 1.0);
+            assert_eq!(
+                out[v * r + 5],
+                2.0,
+                "row {v}: {:?}",
+                &out[v * r..(v + 1) * r]
+            );
+            assert_eq!(out[v * r + 6], 100.0, "outside the mask changed");
+        }
+        assert_eq!(median_within(&values, &mask, r, 0), values);
+    }
 }

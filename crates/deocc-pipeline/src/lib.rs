@@ -238,6 +238,19 @@ pub fn run_observed(
             &scene.frames[c.window.view],
             link.name(),
             link.provenance(),
+            &fuse::FuseOptions {
+                spread: c.spread.as_ref().map(|spread| fuse::SpreadLimit {
+                    spread,
+                    max_m: opts.gate_max_depth_spread_m,
+                }),
+                // The rules' depth is smooth already (planes and mirrored surfaces), where a
+                // median only bends the silhouette's edge.
+                median_px: if link.provenance() == Provenance::Model {
+                    opts.generated_depth_median_px
+                } else {
+                    0
+                },
+            },
         );
         if rec.accepted {
             let v = gate::gate_completion(
@@ -273,6 +286,7 @@ pub fn run_observed(
             mean_confidence: None,
             seen_through_fraction: None,
             gated: false,
+            spread_dropped: 0,
             accepted: false,
             reason: format!("declined: {}", d.reasons.join("; ")),
         });
@@ -462,6 +476,7 @@ fn make_report(
         .len();
     let count = |p: Provenance| codes.iter().filter(|&&g| g == p.code()).count();
     let completions_gated = records.iter().filter(|r| r.gated).count();
+    let points_spread_dropped = records.iter().map(|r| r.spread_dropped).sum();
     RunReport {
         frames: scene.frames.len(),
         options: opts.clone(),
@@ -479,6 +494,7 @@ fn make_report(
         points_carved,
         crops_declined,
         completions_gated,
+        points_spread_dropped,
         timings,
         poses: if registration.is_empty() {
             "given"

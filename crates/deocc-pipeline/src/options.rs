@@ -74,6 +74,17 @@ pub struct PipelineOptions {
     /// Quality gate: a completion more than this share of whose points lie where a view saw
     /// through (measured something behind them) is dropped whole (1 = never).
     pub gate_max_seen_through_fraction: f32,
+    /// Mirror check (metres; 0 = off): every crop is also completed mirrored left to right (in
+    /// the same completer call, so a batched model pays little more), and a generated point is
+    /// left out where the two answers' depths, in metres through the depth fit, differ by more
+    /// than this ([`crate::complete::DepthSpread`]). A point-wise quality gate: where the answer
+    /// depends on which way the crop faces, the completer does not know the depth.
+    pub gate_max_depth_spread_m: f32,
+    /// Median filter radius, pixels of the crop (0 = off), of a learned completer's near and
+    /// far depth over its amodal mask before fusion ([`crate::fuse::median_within`]): its
+    /// per-pixel depth is rough, and a rough hidden side gives a grasp planner normals that
+    /// point anywhere. Completions of model provenance only (the rules' are smooth).
+    pub generated_depth_median_px: usize,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -112,6 +123,8 @@ impl Default for PipelineOptions {
             max_scene_radius_m: 50.0,
             gate_min_mean_confidence: GATE_MIN_MEAN_CONFIDENCE,
             gate_max_seen_through_fraction: GATE_MAX_SEEN_THROUGH_FRACTION,
+            gate_max_depth_spread_m: 0.0,
+            generated_depth_median_px: 0,
         }
     }
 }
@@ -202,6 +215,21 @@ impl PipelineOptions {
             if !(0.0..=1.0).contains(&v) {
                 return Err(bad(field, format!("{v} is outside [0, 1]")));
             }
+        }
+        if !(0.0..=10.0).contains(&self.gate_max_depth_spread_m) {
+            return Err(bad(
+                "gate_max_depth_spread_m",
+                format!(
+                    "{} m is outside [0, 10] m (0 = off)",
+                    self.gate_max_depth_spread_m
+                ),
+            ));
+        }
+        if self.generated_depth_median_px > 16 {
+            return Err(bad(
+                "generated_depth_median_px",
+                format!("{} is outside 0..=16", self.generated_depth_median_px),
+            ));
         }
         if self.min_visible_px == 0 {
             return Err(bad("min_visible_px", "must be at least 1"));

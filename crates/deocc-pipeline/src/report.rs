@@ -40,6 +40,9 @@ pub struct CompletionRecord {
     pub seen_through_fraction: Option<f32>,
     /// Rejected by the quality gate (the reason says which limit).
     pub gated: bool,
+    /// Points not generated because the completion of the mirrored crop put them more than
+    /// [`PipelineOptions::gate_max_depth_spread_m`] away (0 when the mirror check is off).
+    pub spread_dropped: usize,
     pub accepted: bool,
     pub reason: String,
 }
@@ -95,6 +98,9 @@ pub struct RunReport {
     pub crops_declined: usize,
     /// Completions the quality gate rejected ([`crate::gate`]; each record says why).
     pub completions_gated: usize,
+    /// Generated points the mirror check left out
+    /// ([`PipelineOptions::gate_max_depth_spread_m`]).
+    pub points_spread_dropped: usize,
     pub timings: StageTimings,
     /// "given" (poses from cameras.json) or "icp" (pose-free input registered frame to frame).
     pub poses: &'static str,

@@ -188,9 +188,12 @@ fn plane_fill_lands_on_hidden_ground_truth() {
 
 /// A completer with no weights: every crop candidate pixel joins the object at the object's median
 /// visible depth, in one colour, with probability [`STUB_PROBABILITY`]; it declines crops wider
-/// than `max_width_m`.
+/// than `max_width_m`. Its far side lies 0.3 crop widths behind the near side, plus `lopsided`
+/// times the pixel's column over the crop's width: a completer whose answer depends on which way
+/// the crop faces.
 struct Stub {
     max_width_m: f32,
+    lopsided: f32,
 }
 
 const STUB_COLOUR: [u8; 3] = [1, 2, 3];
@@ -231,7 +234,15 @@ impl Completer for Stub {
                         .collect(),
                     rgb: (0..n).flat_map(|_| STUB_COLOUR).collect(),
                     depth: c.visible_depth.clone(),
-                    back_depth: c.visible_depth.iter().map(|d| d + 0.3).collect(),
+                    back_depth: c
+                        .visible_depth
+                        .iter()
+                        .enumerate()
+                        .map(|(p, d)| {
+                            let column = (p % c.resolution) as f32 / c.resolution as f32;
+                            d + 0.3 + self.lopsided * column
+                        })
+                        .collect(),
                     amodal,
                 }
             })
@@ -254,7 +265,10 @@ fn small_scene() -> deocc_synth::dataset::RenderedScene {
 fn run_completes_with_a_stub_completer() {
     let rendered = small_scene();
     let scene = rendered.scene_input();
-    let chain = CompleterChain::single(Stub { max_width_m: 100.0 });
+    let chain = CompleterChain::single(Stub {
+        max_width_m: 100.0,
+        lopsided: 0.0,
+    });
     let opts = PipelineOptions {
         complete_planes: false,
         revolve_upright: false,
@@ -325,7 +339,10 @@ fn the_quality_gate_rejects_doubtful_and_contradicted_completions() {
     use deocc_pipeline::gate::gate_completion;
     let rendered = small_scene();
     let scene = rendered.scene_input();
-    let chain = CompleterChain::single(Stub { max_width_m: 100.0 });
+    let chain = CompleterChain::single(Stub {
+        max_width_m: 100.0,
+        lopsided: 0.0,
+    });
     let strict = PipelineOptions {
         complete_planes: false,
         extend_to_support: false,
@@ -383,6 +400,64 @@ fn the_quality_gate_rejects_doubtful_and_contradicted_completions() {
     let v = gate_completion(&kept, &scene, &projectors, 0.0, 0.5);
     assert!(v.seen_through_fraction < 0.05, "{v:?}");
     assert!(v.rejected.is_none());
+}
+
+/// The mirror check leaves out the points whose depth the completion of the mirrored crop
+/// contradicts, and nothing of a completer whose answer does not depend on the crop's facing.
+#[test]
+fn the_mirror_check_drops_points_the_mirrored_crop_contradicts() {
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let base = PipelineOptions {
+        complete_planes: false,
+        extend_to_support: false,
+        revolve_upright: false,
+        cuboid_upright: false,
+        ..Default::default()
+    };
+    let checked = PipelineOptions {
+        gate_max_depth_spread_m: 0.02,
+        ..base.clone()
+    };
+    let run = |lopsided: f32, opts: &PipelineOptions| {
+        let chain = CompleterChain::single(Stub {
+            max_width_m: 100.0,
+            lopsided,
+        });
+        deocc_pipeline::run(&scene, &chain, opts, &Vec::new()).unwrap()
+    };
+    // A mirror-symmetric answer: the same cloud with the check on or off.
+    let (off, on) = (run(0.0, &base), run(0.0, &checked));
+    assert!(off.report.points_model > 0);
+    assert_eq!(on.report.points_spread_dropped, 0);
+    assert_eq!(on.completed.positions, off.completed.positions);
+    // A lopsided one: points where the two answers differ by more than 2 cm are left out, and
+    // the records add up to the report's count.
+    let (off, on) = (run(0.5, &base), run(0.5, &checked));
+    let r = &on.report;
+    assert_eq!(off.report.points_spread_dropped, 0);
+    assert!(r.points_spread_dropped > 0, "{r:?}");
+    assert_eq!(
+        r.points_spread_dropped,
+        r.completions
+            .iter()
+            .map(|c| c.spread_dropped)
+            .sum::<usize>()
+    );
+    assert!(
+        r.points_model < off.report.points_model,
+        "{} of {}",
+        r.points_model,
+        off.report.points_model
+    );
+    // A limit no spread reaches keeps everything.
+    let loose = PipelineOptions {
+        gate_max_depth_spread_m: 10.0,
+        ..base.clone()
+    };
+    let all = run(0.5, &loose);
+    assert_eq!(all.report.points_spread_dropped, 0);
+    assert_eq!(all.completed.positions, off.completed.positions);
 }
 
 /// pickup-v1's first scene: a can behind a box. Its completion is replaced by a surface of
@@ -582,7 +657,11 @@ fn declined_crops_go_to_the_rules_completer() {
         complete_planes: false,
         ..Default::default()
     };
-    let chain = CompleterChain::single(Stub { max_width_m: 0.0 }).then(RulesCompleter::default());
+    let chain = CompleterChain::single(Stub {
+        max_width_m: 0.0,
+        lopsided: 0.0,
+    })
+    .then(RulesCompleter::default());
     let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
     let r = &out.report;
     assert_eq!(r.completers, "stub,rules");
@@ -590,7 +669,10 @@ fn declined_crops_go_to_the_rules_completer() {
     assert!(r.points_rules > 0);
     assert!(r.completions.iter().all(|c| c.completer == "rules"));
     assert_eq!(r.crops_declined, 0);
-    let only_stub = CompleterChain::single(Stub { max_width_m: 0.0 });
+    let only_stub = CompleterChain::single(Stub {
+        max_width_m: 0.0,
+        lopsided: 0.0,
+    });
     let out = deocc_pipeline::run(&scene, &only_stub, &opts, &Vec::new()).unwrap();
     assert_eq!(out.report.points_generated, 0);
     assert!(out.report.crops_declined > 0);
@@ -667,6 +749,14 @@ fn options_from_json_are_checked() {
         (
             r#"{"plane_piece_min_fraction": 0}"#,
             "plane_piece_min_fraction",
+        ),
+        (
+            r#"{"gate_max_depth_spread_m": -0.01}"#,
+            "gate_max_depth_spread_m",
+        ),
+        (
+            r#"{"generated_depth_median_px": 17}"#,
+            "generated_depth_median_px",
         ),
     ] {
         std::fs::write(&path, text).unwrap();
