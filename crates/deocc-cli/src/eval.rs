@@ -168,6 +168,10 @@ pub struct AmodalArgs {
     /// Skip the cross-view run (about half the time).
     #[arg(long)]
     no_cross_view: bool,
+    /// Median filter radius (pixels) of the model's depth over its amodal mask before scoring
+    /// (the pipeline's `generated_depth_median_px`); 0 = off.
+    #[arg(long, default_value_t = 0)]
+    median_px: usize,
     /// Bootstrap resamples of every interval.
     #[arg(long, default_value_t = 1000)]
     bootstrap: usize,
@@ -250,6 +254,7 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         mask_thresholds: a.mask_thresholds.clone(),
         bootstrap_resamples: a.bootstrap,
         skip_cross_view: a.no_cross_view,
+        depth_median_px: a.median_px,
         ..AmodalEvalOptions::default()
     };
     let n = opts.pairs.unwrap_or(data.len()).min(data.len());

@@ -17,6 +17,7 @@ use deocc_geometry::mask2d::{convex_hull_mask, iou};
 use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
 use deocc_model::data::PairData;
 use deocc_model::infer::{Completion, GlDotCompleter};
+use deocc_pipeline::fuse::median_within;
 use deocc_synth::shapes::Category;
 use serde::Serialize;
 
@@ -40,6 +41,9 @@ pub struct AmodalEvalOptions {
     pub bootstrap_resamples: usize,
     /// Skip the cross-view run (half the time).
     pub skip_cross_view: bool,
+    /// Median filter radius (pixels; 0 = off) of the model's near and far depth over its amodal
+    /// mask before scoring, as the pipeline's `generated_depth_median_px` does before fusion.
+    pub depth_median_px: usize,
 }
 
 impl Default for AmodalEvalOptions {
@@ -55,6 +59,7 @@ impl Default for AmodalEvalOptions {
             mask_thresholds: Vec::new(),
             bootstrap_resamples: 1000,
             skip_cross_view: false,
+            depth_median_px: 0,
         }
     }
 }
@@ -183,6 +188,8 @@ pub struct ModelFacts {
     pub samples_per_completion: usize,
     /// Colour and depth from the mean head (read at the first step) rather than the flow's sample.
     pub colour_depth_from_mean_head: bool,
+    /// Median filter radius of the model's depth before scoring (0 = none).
+    pub depth_median_px: usize,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -430,8 +437,13 @@ pub fn evaluate_amodal(
                 truth_near: tn,
                 truth_far: tf,
             };
+            let median = |d: &[f32]| median_within(d, &model.amodal, r, opts.depth_median_px);
             if let (Some(m), Some(b)) = (
-                depth_errors(&model.depth_rel, &model.back_depth_rel, &case),
+                depth_errors(
+                    &median(&model.depth_rel),
+                    &median(&model.back_depth_rel),
+                    &case,
+                ),
                 depth_errors(&rule.depth, &rule.back_depth, &case),
             ) {
                 (s.near_model, s.far_model) = m;
@@ -646,6 +658,7 @@ pub fn evaluate_amodal(
             keep_prior: c.keep_prior,
             samples_per_completion: c.samples,
             colour_depth_from_mean_head: c.model.config.mean_head && c.reads_mean,
+            depth_median_px: opts.depth_median_px,
         },
         miou_model: mean(scores.iter().map(|s| s.iou_model)),
         miou_prior: mean(scores.iter().map(|s| s.iou_prior)),

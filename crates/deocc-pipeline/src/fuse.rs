@@ -3,7 +3,8 @@
 //! is rejected. Then what was hidden is back-projected into world points: the near side where
 //! the object is revealed (amodal minus visible, and only where something in front hid it) and
 //! the far side (its back) wherever the object is. Every generated point carries the completer's
-//! probability that its pixel belongs to the object as its confidence. With the mirror check,
+//! probability that its pixel belongs to the object as its confidence. A learned completer's
+//! depth may first be median-filtered over its amodal mask ([`median_within`]). With the mirror check,
 //! a point whose depth the completion of the mirrored crop puts more than a limit away (in
 //! metres, through the same fit) is not generated.
 
@@ -121,14 +122,6 @@ pub fn fuse_completion(
         }
     };
     record.fit = Some(fit);
-    let r = window.resolution;
-    let near_depth = median_within(&completion.depth, &completion.amodal, r, opts.median_px);
-    let back_depth = median_within(
-        &completion.back_depth,
-        &completion.amodal,
-        r,
-        opts.median_px,
-    );
     // A poor fit would put generated geometry at the wrong depth: reject rather than pollute.
     if fit.alpha <= 0.0 || fit.inlier_fraction < MIN_FIT_INLIERS || fit.scale > MAX_FIT_RESIDUAL_M {
         record.reason = format!(
@@ -137,6 +130,14 @@ pub fn fuse_completion(
         );
         return (PointCloud::default(), record);
     }
+    let r = window.resolution;
+    let near_depth = median_within(&completion.depth, &completion.amodal, r, opts.median_px);
+    let back_depth = median_within(
+        &completion.back_depth,
+        &completion.amodal,
+        r,
+        opts.median_px,
+    );
     // Relative depth to metres is the fit's scale; a spread above the limit there is a point
     // the completer does not know.
     let metres = fit.alpha.abs() as f32;
