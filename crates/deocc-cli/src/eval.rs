@@ -170,8 +170,8 @@ pub struct AmodalArgs {
     no_cross_view: bool,
     /// Median filter radius (pixels) of the model's depth over its amodal mask before scoring
     /// (the pipeline's `generated_depth_median_px`); 0 = off.
-    #[arg(long, default_value_t = 0)]
-    median_px: usize,
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=16))]
+    median_px: u32,
     /// Bootstrap resamples of every interval.
     #[arg(long, default_value_t = 1000)]
     bootstrap: usize,
@@ -254,7 +254,7 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         mask_thresholds: a.mask_thresholds.clone(),
         bootstrap_resamples: a.bootstrap,
         skip_cross_view: a.no_cross_view,
-        depth_median_px: a.median_px,
+        depth_median_px: a.median_px as usize,
         ..AmodalEvalOptions::default()
     };
     let n = opts.pairs.unwrap_or(data.len()).min(data.len());
