@@ -63,10 +63,17 @@ pub const DISTANCE_BINS_M: [f32; 5] = [0.02, 0.05, 0.10, 0.20, f32::INFINITY];
 /// of width w at 64 px is w / 64 a pixel, and a relative depth error e is e * w metres.
 pub const CROP_WIDTH_BINS_M: [f32; 4] = [0.25, 0.5, 1.0, f32::INFINITY];
 
+/// A bin's upper edge as reported: `None` (`null` in JSON, which has no infinity) for the
+/// open-ended last bin.
+fn upper_edge(hi: f32) -> Option<f32> {
+    hi.is_finite().then_some(hi)
+}
+
 /// The completer's points whose nearest true surface is within a distance bin.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct DistanceBin {
-    pub distance_up_to_m: f32,
+    /// Upper edge; `None` (`null` in the JSON report) for the open-ended last bin.
+    pub distance_up_to_m: Option<f32>,
     pub points: usize,
 }
 
@@ -74,7 +81,8 @@ pub struct DistanceBin {
 /// how many lie on a true surface.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct CropWidthBin {
-    pub crop_width_up_to_m: f32,
+    /// Upper edge; `None` (`null` in the JSON report) for the open-ended last bin.
+    pub crop_width_up_to_m: Option<f32>,
     pub instances: usize,
     pub points: usize,
     pub within_2cm: f64,
@@ -480,7 +488,7 @@ pub fn object_benchmark(
                     .iter()
                     .zip(&distance[k])
                     .map(|(&hi, &points)| DistanceBin {
-                        distance_up_to_m: hi,
+                        distance_up_to_m: upper_edge(hi),
                         points,
                     })
                     .collect(),
@@ -488,7 +496,7 @@ pub fn object_benchmark(
                     .iter()
                     .zip(&widths[k])
                     .map(|(&hi, &(instances, points, close))| CropWidthBin {
-                        crop_width_up_to_m: hi,
+                        crop_width_up_to_m: upper_edge(hi),
                         instances,
                         points,
                         within_2cm: close as f64 / points.max(1) as f64,
@@ -551,6 +559,35 @@ pub fn object_benchmark(
 mod tests {
     use super::*;
     use nalgebra::Point3;
+
+    /// The open-ended last bins say so in the report (`null`), the others give their edge.
+    #[test]
+    fn open_ended_bins_are_null_in_the_report_and_the_others_numbers() {
+        let bins: Vec<serde_json::Value> = CROP_WIDTH_BINS_M
+            .iter()
+            .map(|&hi| {
+                serde_json::to_value(CropWidthBin {
+                    crop_width_up_to_m: upper_edge(hi),
+                    ..Default::default()
+                })
+                .unwrap()
+            })
+            .collect();
+        let edges: Vec<Option<f64>> = bins
+            .iter()
+            .map(|b| b["crop_width_up_to_m"].as_f64())
+            .collect();
+        assert_eq!(edges.len(), 4);
+        assert!(edges[..3].iter().all(|e| e.is_some()), "{edges:?}");
+        assert!(bins[3]["crop_width_up_to_m"].is_null(), "{:?}", bins[3]);
+        assert!((edges[1].unwrap() - 0.5).abs() < 1e-6);
+        let d = serde_json::to_value(DistanceBin {
+            distance_up_to_m: None,
+            points: 3,
+        })
+        .unwrap();
+        assert!(d["distance_up_to_m"].is_null() && d["points"] == 3);
+    }
 
     /// A can (ground-truth object 5) whose front is observed and whose back is hidden: its
     /// instance's generated points cover the back's near half and stray 5 cm off the rest; a
