@@ -6,7 +6,8 @@
 //! probability that its pixel belongs to the object as its confidence. A learned completer's
 //! depth may first be median-filtered over its amodal mask ([`median_within`]). With the mirror check,
 //! a point whose depth the completion of the mirrored crop puts more than a limit away (in
-//! metres, through the same fit) is not generated.
+//! metres, through the same fit) is not generated. With the thickness cap, neither is a far-side
+//! point more than a limit behind its near side.
 
 use deocc_completion::{CropCompletion, Provenance};
 use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
@@ -47,6 +48,9 @@ pub struct FuseOptions<'a> {
     /// and far depth become the median over the amodal pixels of its (2r+1)^2 window, before
     /// the fit is applied ([`median_within`]).
     pub median_px: usize,
+    /// Thickness cap (metres; 0 = off): a far-side point more than this behind its near side
+    /// is not generated.
+    pub max_thickness_m: f32,
 }
 
 /// The median of `values` over the `mask` pixels of each mask pixel's (2 radius + 1)^2 window
@@ -147,6 +151,11 @@ pub fn fuse_completion(
             d.get(k).is_some_and(|&x| x * metres > s.max_m)
         })
     };
+    let max_thick = if opts.max_thickness_m > 0.0 {
+        opts.max_thickness_m
+    } else {
+        f32::INFINITY
+    };
     let mut spread_dropped = 0;
     let mut positions = Vec::new();
     let mut colors = Vec::new();
@@ -195,6 +204,7 @@ pub fn fuse_completion(
         let back = fit.apply(back_depth[k] as f64) as f32;
         if back.is_finite()
             && back > front + MIN_THICKNESS_M
+            && back - front <= max_thick
             && !(obs > 0.0 && obs > back + FREE_SPACE_MARGIN_M)
         {
             if doubtful(k, true) {

@@ -250,6 +250,11 @@ pub fn run_observed(
                 } else {
                     0
                 },
+                max_thickness_m: if link.provenance() == Provenance::Model {
+                    opts.generated_max_thickness_m
+                } else {
+                    0.0
+                },
             },
         );
         if rec.accepted {

@@ -402,19 +402,25 @@ fn the_quality_gate_rejects_doubtful_and_contradicted_completions() {
     assert!(v.rejected.is_none());
 }
 
+/// The default options with only the completer's own points: no plane fill, support extension,
+/// revolve or cuboid stage.
+fn completion_only() -> PipelineOptions {
+    PipelineOptions {
+        complete_planes: false,
+        extend_to_support: false,
+        revolve_upright: false,
+        cuboid_upright: false,
+        ..Default::default()
+    }
+}
+
 /// The mirror check leaves out the points whose depth the completion of the mirrored crop
 /// contradicts, and nothing of a completer whose answer does not depend on the crop's facing.
 #[test]
 fn the_mirror_check_drops_points_the_mirrored_crop_contradicts() {
     let rendered = small_scene();
     let scene = rendered.scene_input();
-    let base = PipelineOptions {
-        complete_planes: false,
-        extend_to_support: false,
-        revolve_upright: false,
-        cuboid_upright: false,
-        ..Default::default()
-    };
+    let base = completion_only();
     let checked = PipelineOptions {
         gate_max_depth_spread_m: 0.02,
         ..base.clone()
@@ -458,6 +464,43 @@ fn the_mirror_check_drops_points_the_mirrored_crop_contradicts() {
     let all = run(0.5, &loose);
     assert_eq!(all.report.points_spread_dropped, 0);
     assert_eq!(all.completed.positions, off.completed.positions);
+}
+
+/// The thickness cap leaves out a learned completer's far side deeper than the cap behind its
+/// near side, and nothing else; a cap no far side reaches changes nothing. The stub's far side
+/// lies 0.3 crop widths behind its near side and is shaded (its colour times 0.75), which tells
+/// the two sides apart in the cloud.
+#[test]
+fn the_thickness_cap_drops_deep_far_sides_only() {
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let base = completion_only();
+    let run = |cap: f32| {
+        let chain = CompleterChain::single(Stub {
+            max_width_m: 100.0,
+            lopsided: 0.0,
+        });
+        let opts = PipelineOptions {
+            generated_max_thickness_m: cap,
+            ..base.clone()
+        };
+        deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap()
+    };
+    let far_colour = STUB_COLOUR.map(|c| (c as f32 * 0.75) as u8);
+    let count = |out: &deocc_pipeline::PipelineOutput, colour: [u8; 3]| {
+        let c = &out.completed;
+        (0..c.len())
+            .filter(|&i| {
+                c.generated.as_ref().unwrap()[i] == Provenance::Model.code()
+                    && c.colors.as_ref().unwrap()[i] == colour
+            })
+            .count()
+    };
+    let (off, capped) = (run(0.0), run(0.01));
+    assert!(count(&off, far_colour) > 0, "no far side to cap");
+    assert_eq!(count(&capped, far_colour), 0, "a deep far side survived");
+    assert_eq!(count(&capped, STUB_COLOUR), count(&off, STUB_COLOUR));
+    assert_eq!(run(10.0).completed.positions, off.completed.positions);
 }
 
 /// pickup-v1's first scene: a can behind a box. Its completion is replaced by a surface of
@@ -757,6 +800,10 @@ fn options_from_json_are_checked() {
         (
             r#"{"generated_depth_median_px": 17}"#,
             "generated_depth_median_px",
+        ),
+        (
+            r#"{"generated_max_thickness_m": -1}"#,
+            "generated_max_thickness_m",
         ),
     ] {
         std::fs::write(&path, text).unwrap();
