@@ -101,13 +101,13 @@ pub struct PipelineOptions {
 /// completer's completions; tighter limits lose more than they gain. Set them in the options
 /// file to drop completions the views contradict.
 pub const GATE_MIN_MEAN_CONFIDENCE: f32 = 0.0;
+pub const GATE_MAX_SEEN_THROUGH_FRACTION: f32 = 1.0;
 
 /// The thickness cap's default ([`PipelineOptions::generated_max_thickness_m`]), chosen on 20
 /// bench-v1-like tuning scenes (`deocc eval objects --tuning --scenes 20`): GL-DoT's points
 /// within 2 cm of a true surface and the shipped chain's hidden recall, off 55.3% / 0.499,
 /// 0.15 m 59.8% / 0.497, 0.10 m 64.6% / 0.490, 0.08 m 66.5% / 0.480, 0.05 m 67.2% / 0.439.
 pub const GENERATED_MAX_THICKNESS_M: f32 = 0.10;
-pub const GATE_MAX_SEEN_THROUGH_FRACTION: f32 = 1.0;
 
 impl Default for PipelineOptions {
     fn default() -> Self {
