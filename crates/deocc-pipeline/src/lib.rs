@@ -250,10 +250,10 @@ pub fn run_observed(
                 } else {
                     0
                 },
-                max_thickness_m: if link.provenance() == Provenance::Model {
-                    opts.generated_max_thickness_m
-                } else {
-                    0.0
+                max_thickness_m: match link.provenance() {
+                    Provenance::Model => opts.generated_max_thickness_m,
+                    Provenance::Rules => opts.rules_max_thickness_m,
+                    _ => 0.0,
                 },
             },
         );

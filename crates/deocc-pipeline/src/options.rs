@@ -90,6 +90,9 @@ pub struct PipelineOptions {
     /// deep far sides are mostly furniture rays that leave through a far leg or edge, and most
     /// of them miss every true surface (docs/decisions.md).
     pub generated_max_thickness_m: f32,
+    /// The same cap (metres; 0 = off) on the rules completer's far side, its near side
+    /// mirrored: off, so the rules row stays the baseline it was (docs/decisions.md measures it).
+    pub rules_max_thickness_m: f32,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -137,6 +140,7 @@ impl Default for PipelineOptions {
             gate_max_depth_spread_m: 0.0,
             generated_depth_median_px: 0,
             generated_max_thickness_m: GENERATED_MAX_THICKNESS_M,
+            rules_max_thickness_m: 0.0,
         }
     }
 }
@@ -228,23 +232,14 @@ impl PipelineOptions {
                 return Err(bad(field, format!("{v} is outside [0, 1]")));
             }
         }
-        if !(0.0..=10.0).contains(&self.gate_max_depth_spread_m) {
-            return Err(bad(
-                "gate_max_depth_spread_m",
-                format!(
-                    "{} m is outside [0, 10] m (0 = off)",
-                    self.gate_max_depth_spread_m
-                ),
-            ));
-        }
-        if !(0.0..=10.0).contains(&self.generated_max_thickness_m) {
-            return Err(bad(
-                "generated_max_thickness_m",
-                format!(
-                    "{} m is outside [0, 10] m (0 = off)",
-                    self.generated_max_thickness_m
-                ),
-            ));
+        for (field, v) in [
+            ("gate_max_depth_spread_m", self.gate_max_depth_spread_m),
+            ("generated_max_thickness_m", self.generated_max_thickness_m),
+            ("rules_max_thickness_m", self.rules_max_thickness_m),
+        ] {
+            if !(0.0..=10.0).contains(&v) {
+                return Err(bad(field, format!("{v} m is outside [0, 10] m (0 = off)")));
+            }
         }
         if self.generated_depth_median_px > 16 {
             return Err(bad(

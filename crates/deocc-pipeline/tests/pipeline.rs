@@ -805,6 +805,7 @@ fn options_from_json_are_checked() {
             r#"{"generated_max_thickness_m": -1}"#,
             "generated_max_thickness_m",
         ),
+        (r#"{"rules_max_thickness_m": 11}"#, "rules_max_thickness_m"),
     ] {
         std::fs::write(&path, text).unwrap();
         let e = PipelineOptions::from_json_file(&path)
