@@ -66,7 +66,7 @@ class Placement(TypedDict, total=False):
 def run(
     frames: List[Frame],
     options: Optional[Union[Dict[str, Any], str]] = None,
-    completer: str = "gldot",
+    completer: str = "gldot,rules",
     weights: Optional[str] = None,
     segment: bool = False,
     structure_ids: Optional[List[int]] = None,
@@ -74,7 +74,7 @@ def run(
     """The pipeline: completes the occluded objects and fuses them into the cloud.
 
     options: pipeline options (the fields of `deocc run --options`); completer: "gldot",
-    "rules" or a chain "gldot,rules"; weights: a model folder (default the built-in model);
+    "rules" or a chain, default "gldot,rules" as `deocc run`; weights: a model folder (default the built-in model);
     segment: ignore given instance maps and segment every frame.
     """
 

@@ -169,9 +169,13 @@ pub struct AmodalArgs {
     #[arg(long)]
     no_cross_view: bool,
     /// Median filter radius (pixels) of the model's depth over its amodal mask before scoring
-    /// (the pipeline's `generated_depth_median_px`); 0 = off.
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=16))]
-    median_px: u32,
+    /// (the pipeline's `generated_depth_median_px`; default: the pipeline's); 0 = off.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=16))]
+    median_px: Option<u32>,
+    /// The filter applies to pairs whose crop is no wider than this, metres (the pipeline's
+    /// `generated_depth_median_max_crop_m`; default: the pipeline's); 0 = every pair.
+    #[arg(long)]
+    median_max_crop_m: Option<f32>,
     /// Bootstrap resamples of every interval.
     #[arg(long, default_value_t = 1000)]
     bootstrap: usize,
@@ -246,6 +250,13 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     if a.bootstrap == 0 {
         bail!("--bootstrap must be at least 1");
     }
+    if let Some(w) = a.median_max_crop_m {
+        if !(0.0..=10.0).contains(&w) {
+            bail!("--median-max-crop-m {w} is outside [0, 10] m (0 = every pair)");
+        }
+    }
+    // The depth figures are of what the pipeline fuses: its median filter by default.
+    let pipeline_defaults = deocc_pipeline::PipelineOptions::default();
     let opts = AmodalEvalOptions {
         pairs: a.pairs,
         main_steps: a.main_steps as usize,
@@ -254,7 +265,12 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         mask_thresholds: a.mask_thresholds.clone(),
         bootstrap_resamples: a.bootstrap,
         skip_cross_view: a.no_cross_view,
-        depth_median_px: a.median_px as usize,
+        depth_median_px: a
+            .median_px
+            .map_or(pipeline_defaults.generated_depth_median_px, |r| r as usize),
+        depth_median_max_crop_m: a
+            .median_max_crop_m
+            .unwrap_or(pipeline_defaults.generated_depth_median_max_crop_m),
         ..AmodalEvalOptions::default()
     };
     let n = opts.pairs.unwrap_or(data.len()).min(data.len());

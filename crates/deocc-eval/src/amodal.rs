@@ -44,6 +44,10 @@ pub struct AmodalEvalOptions {
     /// Median filter radius (pixels; 0 = off) of the model's near and far depth over its amodal
     /// mask before scoring, as the pipeline's `generated_depth_median_px` does before fusion.
     pub depth_median_px: usize,
+    /// The filter applies only to pairs whose crop is no wider than this (metres; 0 = every
+    /// pair), as the pipeline's `generated_depth_median_max_crop_m`: the pairs must carry
+    /// their crop width (`crop_width_m`, stored since it was added).
+    pub depth_median_max_crop_m: f32,
 }
 
 impl Default for AmodalEvalOptions {
@@ -60,6 +64,7 @@ impl Default for AmodalEvalOptions {
             bootstrap_resamples: 1000,
             skip_cross_view: false,
             depth_median_px: 0,
+            depth_median_max_crop_m: 0.0,
         }
     }
 }
@@ -190,6 +195,10 @@ pub struct ModelFacts {
     pub colour_depth_from_mean_head: bool,
     /// Median filter radius of the model's depth before scoring (0 = none).
     pub depth_median_px: usize,
+    /// ... on crops no wider than this (metres; 0 = every crop).
+    pub depth_median_max_crop_m: f32,
+    /// Pairs whose depth was median-filtered.
+    pub depth_median_pairs: usize,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -330,6 +339,17 @@ fn colour_error(rgb: &[u8], truth: &[u8], hidden: &[usize]) -> f64 {
     }))
 }
 
+/// The median filter's radius for a pair whose crop is `crop_width_m` wide (the pipeline's
+/// rule, `PipelineOptions::generated_depth_median_for`).
+fn median_radius(opts: &AmodalEvalOptions, crop_width_m: f32) -> usize {
+    deocc_pipeline::PipelineOptions {
+        generated_depth_median_px: opts.depth_median_px,
+        generated_depth_median_max_crop_m: opts.depth_median_max_crop_m,
+        ..Default::default()
+    }
+    .generated_depth_median_for(crop_width_m)
+}
+
 /// The chair-legs rule and the bottom region: rows in the bottom 40% of the amodal box, and
 /// whether at least 30% of the object there is hidden.
 fn bottom_region(truth: &[bool], visible: &[bool], r: usize) -> (Vec<bool>, bool) {
@@ -387,6 +407,18 @@ pub fn evaluate_amodal(
     let rules_out: Vec<CropCompletion> = conds.iter().map(|c| rules.complete_one(c)).collect();
     let model_out = complete_model(c, data, &idx, opts.main_steps, 0.0, opts, tick)?;
 
+    if opts.depth_median_px > 0
+        && opts.depth_median_max_crop_m > 0.0
+        && idx.iter().any(|&i| !set.crop_width_m[i].is_finite())
+    {
+        return Err(EvalError::Data(
+            "the median filter's crop-width limit needs each pair's crop width, and these \
+             pairs were made before it was stored (tensor 'crop_width_m'): make them again \
+             with `deocc synth pairs`, or set the limit to 0"
+                .into(),
+        ));
+    }
+    let mut depth_median_pairs = 0;
     let mut scores = Vec::with_capacity(n);
     let (mut cand_scores, mut cand_dist, mut cand_labels) = (Vec::new(), Vec::new(), Vec::new());
     for (k, &i) in idx.iter().enumerate() {
@@ -437,7 +469,9 @@ pub fn evaluate_amodal(
                 truth_near: tn,
                 truth_far: tf,
             };
-            let median = |d: &[f32]| median_within(d, &model.amodal, r, opts.depth_median_px);
+            let radius = median_radius(opts, set.crop_width_m[i]);
+            depth_median_pairs += (radius > 0) as usize;
+            let median = |d: &[f32]| median_within(d, &model.amodal, r, radius);
             if let (Some(m), Some(b)) = (
                 depth_errors(
                     &median(&model.depth_rel),
@@ -659,6 +693,8 @@ pub fn evaluate_amodal(
             samples_per_completion: c.samples,
             colour_depth_from_mean_head: c.model.config.mean_head && c.reads_mean,
             depth_median_px: opts.depth_median_px,
+            depth_median_max_crop_m: opts.depth_median_max_crop_m,
+            depth_median_pairs,
         },
         miou_model: mean(scores.iter().map(|s| s.iou_model)),
         miou_prior: mean(scores.iter().map(|s| s.iou_prior)),

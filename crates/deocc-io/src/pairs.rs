@@ -1,7 +1,8 @@
 //! GL-DoT training pairs on disk: one safetensors shard holds N crops at resolution R, one
 //! tensor per field (`crop_rgb` (N, R, R, 3) u8, `visible_mask` (N, R, R) u8, `visible_depth`,
 //! `scene_depth`, `whole_depth`, `whole_back_depth` (N, R, R) f32, `whole_rgb`, `amodal_mask`,
-//! `group` (N) u32, `category` and `held_out` (N) u8, `occlusion` (N) f32). The renderer writes
+//! `group` (N) u32, `category` and `held_out` (N) u8, `occlusion` and `crop_width_m` (N) f32;
+//! shards from before `crop_width_m` load with it unknown, NaN). The renderer writes
 //! them (`deocc synth pairs`); the model reads them. Depth is relative to the object's median
 //! visible depth, in crop widths (see `deocc_completion::crop`).
 
@@ -28,6 +29,9 @@ pub struct PairSet {
     pub category: Vec<u8>,       // Category as u8 (declaration order)
     pub held_out: Vec<u8>,
     pub occlusion: Vec<f32>, // 1 - visible / amodal, in the crop
+    /// The crop's width in metres at the object's median visible depth: the unit of relative
+    /// depth (NaN where unknown: shards written before it was stored).
+    pub crop_width_m: Vec<f32>, // (N)
 }
 
 impl PairSet {
@@ -56,6 +60,7 @@ impl PairSet {
         self.category.truncate(n);
         self.held_out.truncate(n);
         self.occlusion.truncate(n);
+        self.crop_width_m.truncate(n);
     }
 
     pub fn extend(&mut self, o: &PairSet) {
@@ -72,6 +77,7 @@ impl PairSet {
         self.category.extend_from_slice(&o.category);
         self.held_out.extend_from_slice(&o.held_out);
         self.occlusion.extend_from_slice(&o.occlusion);
+        self.crop_width_m.extend_from_slice(&o.crop_width_m);
     }
 }
 
@@ -142,6 +148,12 @@ pub fn save_pairs(path: &Path, set: &PairSet) -> Result<()> {
             Dtype::F32,
             vec![n],
             bytes_of_f32(&set.occlusion),
+        ),
+        (
+            "crop_width_m",
+            Dtype::F32,
+            vec![n],
+            bytes_of_f32(&set.crop_width_m),
         ),
     ];
     let views: Vec<(&str, TensorView)> = f
@@ -216,6 +228,11 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
         category: get("category", Dtype::U8)?.1.to_vec(),
         held_out: get("held_out", Dtype::U8)?.1.to_vec(),
         occlusion: f32s(get("occlusion", Dtype::F32)?.1),
+        // Optional: older shards do not store it.
+        crop_width_m: match st.tensor("crop_width_m") {
+            Ok(_) => f32s(get("crop_width_m", Dtype::F32)?.1),
+            Err(_) => vec![f32::NAN; n],
+        },
     };
     let px = r * r;
     let ok = set.visible_mask.len() == n * px
@@ -228,7 +245,8 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
         && set.group.len() == n
         && set.category.len() == n
         && set.held_out.len() == n
-        && set.occlusion.len() == n;
+        && set.occlusion.len() == n
+        && set.crop_width_m.len() == n;
     if !ok {
         return Err(err("tensor sizes disagree with the number of pairs".into()));
     }

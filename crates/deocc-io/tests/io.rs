@@ -401,3 +401,69 @@ fn implausible_cameras_are_refused() {
     std::fs::write(&path, frame(ok_k, "0.5")).unwrap();
     assert!(deocc_io::cameras::read_cameras_json(&path).is_ok());
 }
+
+/// Two pairs at 2x2 with every field filled (distinct values, so a swapped field shows).
+fn two_pairs() -> deocc_io::pairs::PairSet {
+    let (n, px) = (2, 4);
+    deocc_io::pairs::PairSet {
+        resolution: 2,
+        crop_rgb: (0..n * px * 3).map(|i| i as u8).collect(),
+        visible_mask: vec![1, 0, 1, 0, 0, 1, 1, 0],
+        visible_depth: (0..n * px).map(|i| i as f32 * 0.1).collect(),
+        scene_depth: (0..n * px).map(|i| -(i as f32) * 0.05).collect(),
+        whole_rgb: (0..n * px * 3).map(|i| 200 - i as u8).collect(),
+        amodal_mask: vec![1, 1, 1, 0, 0, 1, 1, 1],
+        whole_depth: (0..n * px).map(|i| i as f32 * 0.2).collect(),
+        whole_back_depth: (0..n * px).map(|i| i as f32 * 0.3).collect(),
+        group: vec![7, 9],
+        category: vec![3, 6],
+        held_out: vec![0, 1],
+        occlusion: vec![0.25, 0.5],
+        crop_width_m: vec![0.31, 1.52],
+    }
+}
+
+/// Pairs keep each crop's metric width; a shard written before it was stored (no
+/// `crop_width_m` tensor) still loads, its widths unknown (NaN), everything else the same.
+#[test]
+fn pairs_round_trip_with_crop_width_and_older_shards_load_without_it() {
+    use deocc_io::pairs::{load_pairs, save_pairs};
+    use safetensors::tensor::TensorView;
+    let dir = tempfile::tempdir().unwrap();
+    let set = two_pairs();
+    let path = dir.path().join("pairs.safetensors");
+    save_pairs(&path, &set).unwrap();
+    assert_eq!(load_pairs(&path).unwrap(), set);
+
+    // The same shard without the tensor.
+    let bytes = std::fs::read(&path).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let views: Vec<(String, TensorView)> = st
+        .tensors()
+        .into_iter()
+        .filter(|(name, _)| name != "crop_width_m")
+        .collect();
+    assert_eq!(views.len(), st.len() - 1);
+    let old = dir.path().join("old.safetensors");
+    std::fs::write(&old, safetensors::serialize(views, None).unwrap()).unwrap();
+    let loaded = load_pairs(&old).unwrap();
+    assert_eq!(loaded.crop_width_m.len(), 2);
+    assert!(loaded.crop_width_m.iter().all(|w| w.is_nan()));
+    let mut expected = set.clone();
+    expected.crop_width_m = loaded.crop_width_m.clone();
+    assert_eq!(
+        (&loaded.group, &loaded.whole_back_depth, &loaded.occlusion),
+        (
+            &expected.group,
+            &expected.whole_back_depth,
+            &expected.occlusion
+        )
+    );
+
+    // Truncating and extending keep the widths with their pairs.
+    let mut both = set.clone();
+    both.extend(&set);
+    both.truncate(3);
+    assert_eq!(both.crop_width_m, vec![0.31, 1.52, 0.31]);
+    assert_eq!(both.len(), 3);
+}

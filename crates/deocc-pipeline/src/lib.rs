@@ -246,7 +246,7 @@ pub fn run_observed(
                 // The rules' depth is smooth already (planes and mirrored surfaces), where a
                 // median only bends the silhouette's edge.
                 median_px: if link.provenance() == Provenance::Model {
-                    opts.generated_depth_median_px
+                    opts.generated_depth_median_for(c.window.metric_scale_m)
                 } else {
                     0
                 },

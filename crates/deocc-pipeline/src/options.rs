@@ -85,13 +85,18 @@ pub struct PipelineOptions {
     /// per-pixel depth is rough, and a rough hidden side gives a grasp planner normals that
     /// point anywhere. Completions of model provenance only (the rules' are smooth).
     pub generated_depth_median_px: usize,
+    /// The median filter applies only to crops no wider than this (metres at the object's
+    /// median visible depth; 0 = every crop): table-top objects, whose rough hidden side a
+    /// grasp planner meets, not furniture, where it costs hidden recall (docs/decisions.md).
+    pub generated_depth_median_max_crop_m: f32,
     /// Thickness cap (metres; 0 = off) of a learned completer's far side: a far-side point more
     /// than this behind its near side (observed or generated) is not generated. The model's
     /// deep far sides are mostly furniture rays that leave through a far leg or edge, and most
     /// of them miss every true surface (docs/decisions.md).
     pub generated_max_thickness_m: f32,
     /// The same cap (metres; 0 = off) on the rules completer's far side, its near side
-    /// mirrored: off, so the rules row stays the baseline it was (docs/decisions.md measures it).
+    /// mirrored ([`RULES_MAX_THICKNESS_M`]): a mirror of a chair's or a table's near side puts
+    /// most of its points in empty space.
     pub rules_max_thickness_m: f32,
 }
 
@@ -111,6 +116,14 @@ pub const GATE_MAX_SEEN_THROUGH_FRACTION: f32 = 1.0;
 /// within 2 cm of a true surface and the shipped chain's hidden recall, off 55.3% / 0.499,
 /// 0.15 m 59.8% / 0.497, 0.10 m 64.6% / 0.490, 0.08 m 66.5% / 0.480, 0.05 m 67.2% / 0.439.
 pub const GENERATED_MAX_THICKNESS_M: f32 = 0.10;
+
+/// The rules completer's thickness cap ([`PipelineOptions::rules_max_thickness_m`]), chosen on
+/// the same 20 tuning scenes (`--options` with `{"rules_max_thickness_m": X}`): the rules row's
+/// points, their share within 2 cm of a true surface and its hidden recall, off 62.8k 41.6%
+/// 0.424, 0.15 m 38.4k 63.0% 0.422, 0.10 m 34.8k 67.3% 0.417, 0.08 m 29.4k 70.6% 0.407: the
+/// largest cap that keeps the baseline's recall. The shipped chain's rules points (crops over
+/// 0.6 m) 35.7% -> 66.3% within 2 cm at 0.15 m, its recall 0.490 at every cap.
+pub const RULES_MAX_THICKNESS_M: f32 = 0.15;
 
 impl Default for PipelineOptions {
     fn default() -> Self {
@@ -139,8 +152,9 @@ impl Default for PipelineOptions {
             gate_max_seen_through_fraction: GATE_MAX_SEEN_THROUGH_FRACTION,
             gate_max_depth_spread_m: 0.0,
             generated_depth_median_px: 0,
+            generated_depth_median_max_crop_m: 0.0,
             generated_max_thickness_m: GENERATED_MAX_THICKNESS_M,
-            rules_max_thickness_m: 0.0,
+            rules_max_thickness_m: RULES_MAX_THICKNESS_M,
         }
     }
 }
@@ -153,6 +167,17 @@ fn bad(field: &'static str, msg: impl Into<String>) -> PipelineError {
 }
 
 impl PipelineOptions {
+    /// The median filter's radius for a learned completion of a crop `crop_width_m` wide
+    /// (`generated_depth_median_px` within `generated_depth_median_max_crop_m`, else 0).
+    pub fn generated_depth_median_for(&self, crop_width_m: f32) -> usize {
+        let limit = self.generated_depth_median_max_crop_m;
+        if limit <= 0.0 || crop_width_m <= limit {
+            self.generated_depth_median_px
+        } else {
+            0
+        }
+    }
+
     /// Reads options from a JSON file: missing fields take their defaults, unknown fields and
     /// out-of-range values are errors naming the file and the field.
     pub fn from_json_file(path: &Path) -> Result<Self, PipelineError> {
@@ -236,6 +261,10 @@ impl PipelineOptions {
             ("gate_max_depth_spread_m", self.gate_max_depth_spread_m),
             ("generated_max_thickness_m", self.generated_max_thickness_m),
             ("rules_max_thickness_m", self.rules_max_thickness_m),
+            (
+                "generated_depth_median_max_crop_m",
+                self.generated_depth_median_max_crop_m,
+            ),
         ] {
             if !(0.0..=10.0).contains(&v) {
                 return Err(bad(field, format!("{v} m is outside [0, 10] m (0 = off)")));

@@ -404,6 +404,19 @@ fn the_quality_gate_rejects_doubtful_and_contradicted_completions() {
 
 /// The default options with only the completer's own points: no plane fill, support extension,
 /// revolve or cuboid stage.
+/// `pipeline::run` with the stub that declines nothing and answers the same either way a crop
+/// faces.
+fn run_plain_stub(
+    scene: &deocc_io::scene::SceneInput,
+    opts: &PipelineOptions,
+) -> deocc_pipeline::PipelineOutput {
+    let chain = CompleterChain::single(Stub {
+        max_width_m: 100.0,
+        lopsided: 0.0,
+    });
+    deocc_pipeline::run(scene, &chain, opts, &Vec::new()).unwrap()
+}
+
 fn completion_only() -> PipelineOptions {
     PipelineOptions {
         complete_planes: false,
@@ -476,15 +489,11 @@ fn the_thickness_cap_drops_deep_far_sides_only() {
     let scene = rendered.scene_input();
     let base = completion_only();
     let run = |cap: f32| {
-        let chain = CompleterChain::single(Stub {
-            max_width_m: 100.0,
-            lopsided: 0.0,
-        });
         let opts = PipelineOptions {
             generated_max_thickness_m: cap,
             ..base.clone()
         };
-        deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap()
+        run_plain_stub(&scene, &opts)
     };
     let far_colour = STUB_COLOUR.map(|c| (c as f32 * 0.75) as u8);
     let count = |out: &deocc_pipeline::PipelineOutput, colour: [u8; 3]| {
@@ -501,6 +510,40 @@ fn the_thickness_cap_drops_deep_far_sides_only() {
     assert_eq!(count(&capped, far_colour), 0, "a deep far side survived");
     assert_eq!(count(&capped, STUB_COLOUR), count(&off, STUB_COLOUR));
     assert_eq!(run(10.0).completed.positions, off.completed.positions);
+}
+
+/// The median filter of a learned completer's depth changes its points, and its crop-width
+/// limit confines it: under a limit no crop is narrow enough for, the points are those of no
+/// filter; under a limit every crop is within, those of the filter everywhere.
+#[test]
+fn the_depth_median_applies_to_crops_within_its_width_limit_only() {
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let base = completion_only();
+    let run = |radius: usize, limit_m: f32| {
+        let opts = PipelineOptions {
+            generated_depth_median_px: radius,
+            generated_depth_median_max_crop_m: limit_m,
+            ..base.clone()
+        };
+        run_plain_stub(&scene, &opts).completed.positions
+    };
+    let (plain, filtered) = (run(0, 0.0), run(2, 0.0));
+    assert_ne!(plain, filtered, "the median changed nothing to test with");
+    assert_eq!(run(2, 0.001), plain);
+    assert_eq!(run(2, 10.0), filtered);
+    let opts = PipelineOptions {
+        generated_depth_median_px: 2,
+        generated_depth_median_max_crop_m: 0.5,
+        ..Default::default()
+    };
+    assert_eq!(
+        (
+            opts.generated_depth_median_for(0.5),
+            opts.generated_depth_median_for(0.51)
+        ),
+        (2, 0)
+    );
 }
 
 /// pickup-v1's first scene: a can behind a box. Its completion is replaced by a surface of
@@ -806,6 +849,10 @@ fn options_from_json_are_checked() {
             "generated_max_thickness_m",
         ),
         (r#"{"rules_max_thickness_m": 11}"#, "rules_max_thickness_m"),
+        (
+            r#"{"generated_depth_median_max_crop_m": -0.5}"#,
+            "generated_depth_median_max_crop_m",
+        ),
     ] {
         std::fs::write(&path, text).unwrap();
         let e = PipelineOptions::from_json_file(&path)

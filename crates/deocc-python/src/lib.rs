@@ -247,7 +247,7 @@ fn json_to_py<'py>(py: Python<'py>, json: &str) -> PyResult<Bound<'py, PyAny>> {
 /// `instances` (H, W) uint16, optional `name`). Returns a dict: the completed cloud's arrays,
 /// `observed` (the observed cloud's arrays) and `report`.
 #[pyfunction]
-#[pyo3(signature = (frames, options=None, completer="gldot", weights=None, segment=false, structure_ids=None))]
+#[pyo3(signature = (frames, options=None, completer="gldot,rules", weights=None, segment=false, structure_ids=None))]
 fn run<'py>(
     py: Python<'py>,
     frames: &Bound<'py, PyAny>,

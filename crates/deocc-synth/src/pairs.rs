@@ -274,6 +274,7 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             out.category.push(obj.category as u8);
             out.held_out.push(obj.category.is_held_out() as u8);
             out.occlusion.push(occlusion);
+            out.crop_width_m.push(s);
         }
     }
     Ok(out)

@@ -269,6 +269,14 @@ fn pairs_are_consistent_and_round_trip() {
             }
         }
     }
+    // Every crop's metric width is known: its side at the object's depth, within the scenes'
+    // range of sizes (a mug's crop at a few tenths of a metre, a shelf's a few metres).
+    assert_eq!(set.crop_width_m.len(), set.len());
+    assert!(
+        set.crop_width_m.iter().all(|&w| (0.02..10.0).contains(&w)),
+        "{:?}",
+        set.crop_width_m
+    );
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("p.safetensors");
     save_pairs(&p, &set).unwrap();

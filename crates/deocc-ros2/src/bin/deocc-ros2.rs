@@ -96,8 +96,8 @@ struct BridgeArgs {
     /// A file holding the server's shared token (as `deocc serve --token-file`).
     #[arg(long, requires = "service")]
     token_file: Option<PathBuf>,
-    /// Completers, in order (in process): gldot, rules.
-    #[arg(long, default_value = "gldot", value_delimiter = ',')]
+    /// Completers, in order (in process): gldot, rules (default: the shipped chain).
+    #[arg(long, default_value = "gldot,rules", value_delimiter = ',')]
     completer: Vec<String>,
     /// GL-DoT weights folder (in process; default the built-in model).
     #[arg(long)]
