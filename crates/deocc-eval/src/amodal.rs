@@ -18,6 +18,7 @@ use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
 use deocc_model::data::PairData;
 use deocc_model::infer::{Completion, GlDotCompleter};
 use deocc_pipeline::fuse::median_within;
+use deocc_pipeline::options::depth_median_radius;
 use deocc_synth::shapes::Category;
 use serde::Serialize;
 
@@ -339,17 +340,6 @@ fn colour_error(rgb: &[u8], truth: &[u8], hidden: &[usize]) -> f64 {
     }))
 }
 
-/// The median filter's radius for a pair whose crop is `crop_width_m` wide (the pipeline's
-/// rule, `PipelineOptions::generated_depth_median_for`).
-fn median_radius(opts: &AmodalEvalOptions, crop_width_m: f32) -> usize {
-    deocc_pipeline::PipelineOptions {
-        generated_depth_median_px: opts.depth_median_px,
-        generated_depth_median_max_crop_m: opts.depth_median_max_crop_m,
-        ..Default::default()
-    }
-    .generated_depth_median_for(crop_width_m)
-}
-
 /// The chair-legs rule and the bottom region: rows in the bottom 40% of the amodal box, and
 /// whether at least 30% of the object there is hidden.
 fn bottom_region(truth: &[bool], visible: &[bool], r: usize) -> (Vec<bool>, bool) {
@@ -469,7 +459,12 @@ pub fn evaluate_amodal(
                 truth_near: tn,
                 truth_far: tf,
             };
-            let radius = median_radius(opts, set.crop_width_m[i]);
+            // The pipeline's rule (`PipelineOptions::generated_depth_median_for`).
+            let radius = depth_median_radius(
+                opts.depth_median_px,
+                opts.depth_median_max_crop_m,
+                set.crop_width_m[i],
+            );
             depth_median_pairs += (radius > 0) as usize;
             let median = |d: &[f32]| median_within(d, &model.amodal, r, radius);
             if let (Some(m), Some(b)) = (

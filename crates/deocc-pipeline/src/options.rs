@@ -166,16 +166,25 @@ fn bad(field: &'static str, msg: impl Into<String>) -> PipelineError {
     }
 }
 
+/// The median filter's rule: `radius_px` for a crop no wider than `max_crop_m` (0 = any
+/// width), else 0 (a crop of unknown width, NaN, is filtered only without a limit).
+pub fn depth_median_radius(radius_px: usize, max_crop_m: f32, crop_width_m: f32) -> usize {
+    if max_crop_m <= 0.0 || crop_width_m <= max_crop_m {
+        radius_px
+    } else {
+        0
+    }
+}
+
 impl PipelineOptions {
     /// The median filter's radius for a learned completion of a crop `crop_width_m` wide
     /// (`generated_depth_median_px` within `generated_depth_median_max_crop_m`, else 0).
     pub fn generated_depth_median_for(&self, crop_width_m: f32) -> usize {
-        let limit = self.generated_depth_median_max_crop_m;
-        if limit <= 0.0 || crop_width_m <= limit {
-            self.generated_depth_median_px
-        } else {
-            0
-        }
+        depth_median_radius(
+            self.generated_depth_median_px,
+            self.generated_depth_median_max_crop_m,
+            crop_width_m,
+        )
     }
 
     /// Reads options from a JSON file: missing fields take their defaults, unknown fields and
