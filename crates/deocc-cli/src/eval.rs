@@ -168,6 +168,10 @@ pub struct AmodalArgs {
     /// Skip the cross-view run (about half the time).
     #[arg(long)]
     no_cross_view: bool,
+    /// Leave out what the other views observed of each object (reprojected into the crop, as
+    /// the pipeline does with several frames) from every completer's input: one view's answer.
+    #[arg(long)]
+    no_seen_elsewhere: bool,
     /// Median filter radius (pixels) of the model's depth over its amodal mask before scoring
     /// (the pipeline's `generated_depth_median_px`; default: the pipeline's); 0 = off.
     #[arg(long, value_parser = clap::value_parser!(u32).range(0..=16))]
@@ -239,7 +243,15 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         completer.reads_mean = false;
     }
     let data = test_pairs(a.data.as_ref(), &a.split, 120)?
-        .with_mask_prior(completer.model.config.mask_prior);
+        .with_mask_prior(completer.model.config.mask_prior)
+        .with_seen_elsewhere(!a.no_seen_elsewhere);
+    if !a.no_seen_elsewhere && !data.set.has_elsewhere() {
+        eprintln!(
+            "note: these pairs carry no other views' observations (made before they were \
+             stored); make them again with `deocc synth pairs` to score what the pipeline does \
+             with several frames"
+        );
+    }
     if data.resolution() != completer.resolution() {
         bail!(
             "{} pairs are {0}x{0} but the model expects {1}x{1}",
@@ -282,7 +294,13 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         .count()
         * opts.sweep_pairs.min(n);
     eprintln!("evaluating {n} {} pairs", a.split);
-    let pb = crate::progress::bar((n + multi + sweep) as u64, "completions");
+    // The run without the other views' observations, when the pairs carry them.
+    let single = if data.set.has_elsewhere() && data.seen_elsewhere() {
+        n
+    } else {
+        0
+    };
+    let pb = crate::progress::bar((n + multi + sweep + single) as u64, "completions");
     let report = evaluate_amodal(&completer, &data, &a.split, &opts, &mut |k| {
         pb.inc(k as u64)
     })?;

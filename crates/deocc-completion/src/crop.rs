@@ -29,6 +29,32 @@ pub struct CropCondition {
     /// The crop's width in metres at the object's median visible depth (the unit of relative
     /// depth), when known; training pairs do not carry it.
     pub crop_width_m: Option<f32>,
+    /// What other views observed of the object, seen from this crop's camera (set by
+    /// [`CropCondition::with_seen_elsewhere`]; `None` with one view).
+    pub seen_elsewhere: Option<SeenElsewhere>,
+}
+
+/// Other views' observations of the object reprojected into a crop
+/// (`deocc_geometry::reproject`): where this view does not see the object but another did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SeenElsewhere {
+    /// (r*r*3) colour where `depth` is set.
+    pub rgb: Vec<u8>,
+    /// (r*r) relative depth of the nearest reprojected point, infinite where none landed.
+    pub depth: Vec<f32>,
+}
+
+/// A reprojected point is kept only where the scene this view measured is in front of it or
+/// at most this far behind it (relative depth): farther behind, this view would have seen it.
+pub const SEEN_ELSEWHERE_TOLERANCE: f32 = 0.05;
+
+/// What is known of the object's near side in a crop: its visible pixels and, where other views
+/// saw it, their reprojected points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Observed {
+    pub mask: Vec<bool>,
+    pub rgb: Vec<u8>,
+    pub depth: Vec<f32>,
 }
 
 impl CropCondition {
@@ -55,7 +81,64 @@ impl CropCondition {
             scene_depth,
             prior,
             crop_width_m,
+            seen_elsewhere: None,
         }
+    }
+
+    /// The crop with other views' observations of the object (relative depth infinite where none),
+    /// kept on pixels this view does not see the object and where its own measurement does not
+    /// contradict them ([`SEEN_ELSEWHERE_TOLERANCE`]); the prior takes in the kept points.
+    /// Empty observations leave the crop as it was.
+    pub fn with_seen_elsewhere(mut self, mut seen: SeenElsewhere) -> Self {
+        let n = self.pixels();
+        if seen.depth.len() != n || seen.rgb.len() != 3 * n {
+            return self;
+        }
+        for k in 0..n {
+            let d = seen.depth[k];
+            let scene = self.scene_depth[k];
+            let measured = scene != 0.0;
+            if self.visible[k] || (measured && scene > d + SEEN_ELSEWHERE_TOLERANCE) {
+                seen.depth[k] = f32::INFINITY;
+            }
+        }
+        if seen.depth.iter().all(|d| !d.is_finite()) {
+            return self;
+        }
+        self.seen_elsewhere = Some(seen);
+        self.prior = self.prior_of_observed(MaskPrior::EllipseOrBoxInFront);
+        self
+    }
+
+    /// The visible pixels and the other views' kept points, with their colour and relative depth.
+    pub fn observed(&self) -> Observed {
+        let mut out = Observed {
+            mask: self.visible.clone(),
+            rgb: self.rgb.clone(),
+            depth: self.visible_depth.clone(),
+        };
+        if let Some(s) = &self.seen_elsewhere {
+            for (k, &d) in s.depth.iter().enumerate() {
+                if d.is_finite() && !out.mask[k] {
+                    out.mask[k] = true;
+                    out.depth[k] = d;
+                    out.rgb[3 * k..3 * k + 3].copy_from_slice(&s.rgb[3 * k..3 * k + 3]);
+                }
+            }
+        }
+        out
+    }
+
+    /// The prior of `kind` from the visible pixels, and the pixels other views saw. (Fitting
+    /// the prior to both measured worse on the val pairs: prior mIoU 0.857 against 0.873.)
+    fn prior_of_observed(&self, kind: MaskPrior) -> Vec<bool> {
+        let mut prior = mask_prior(kind, &self.visible, &self.scene_depth, self.resolution);
+        if let Some(s) = &self.seen_elsewhere {
+            for (p, d) in prior.iter_mut().zip(&s.depth) {
+                *p |= d.is_finite();
+            }
+        }
+        prior
     }
 
     pub fn pixels(&self) -> usize {
@@ -70,6 +153,8 @@ impl CropCondition {
     pub fn prior_of(&self, kind: MaskPrior) -> Vec<bool> {
         if kind == MaskPrior::EllipseOrBoxInFront {
             self.prior.clone()
+        } else if self.seen_elsewhere.is_some() {
+            self.prior_of_observed(kind)
         } else {
             mask_prior(kind, &self.visible, &self.scene_depth, self.resolution)
         }
@@ -96,6 +181,10 @@ impl CropCondition {
             scene_depth: mirror(&self.scene_depth, r, 1),
             prior: mirror(&self.prior, r, 1),
             crop_width_m: self.crop_width_m,
+            seen_elsewhere: self.seen_elsewhere.as_ref().map(|s| SeenElsewhere {
+                rgb: mirror(&s.rgb, r, 3),
+                depth: mirror(&s.depth, r, 1),
+            }),
         }
     }
 }

@@ -35,7 +35,9 @@ pub mod crop;
 pub mod priors;
 pub mod rules;
 
-pub use crop::{CompletionOptions, CropCompletion, CropCondition, CropRequest};
+pub use crop::{
+    CompletionOptions, CropCompletion, CropCondition, CropRequest, Observed, SeenElsewhere,
+};
 pub use deocc_geometry::Provenance;
 pub use priors::MaskPrior;
 

@@ -5,6 +5,9 @@
 //! - colour: each hidden pixel takes the colour of the nearest visible pixel;
 //! - near side: a plane fitted (Huber IRLS) to the visible relative depth over the crop, extended
 //!   under the hidden pixels; visible pixels keep their observed depth;
+//! - with other views ([`CropCondition::seen_elsewhere`]), the points they saw join the mask
+//!   and keep their colour and depth, and seed the colour fill and the plane as visible pixels
+//!   do;
 //! - far side: the near side mirrored about the object's axis, row by row, as for a solid of
 //!   revolution standing upright (a can, a bottle): each row's cross-section is a circle as wide
 //!   as the row's extent in the mask.
@@ -58,7 +61,9 @@ impl RulesCompleter {
                 }
             })
             .collect();
-        let fill = nearest_visible_colour(&c.rgb, &c.visible, r);
+        // Visible pixels and, with several views, the points other views saw of the object.
+        let seen = c.observed();
+        let fill = nearest_visible_colour(&seen.rgb, &seen.mask, r);
         let rgb = (0..r * r)
             .flat_map(|p| {
                 let px = if amodal[p] {
@@ -69,7 +74,7 @@ impl RulesCompleter {
                 px.into_iter()
             })
             .collect();
-        let depth = plane_near_side(&c.visible_depth, &c.visible, r);
+        let depth = plane_near_side(&seen.depth, &seen.mask, r);
         let back_depth = symmetric_far_side(&depth, &amodal, r);
         CropCompletion {
             amodal,

@@ -364,3 +364,68 @@ fn ellipse_or_box_prior_fills_the_hidden_corner_of_a_rectangle() {
         hull_prior(&speck, &scene, r)
     );
 }
+
+/// Another view saw the hidden right part of the disk: the rules keep those points' colour and
+/// depth, put them in the mask and fit the prior to them; a point the crop's own measurement
+/// contradicts (the scene seen behind it) and points on visible pixels change nothing.
+#[test]
+fn points_other_views_saw_join_the_rules_completion_unless_the_crop_contradicts_them() {
+    let crop = occluded_disk();
+    let r = crop.resolution;
+    let (cx, cy, rad) = (14.0f32, 16.0f32, 9.0f32);
+    let in_disk = |p: usize| {
+        let (u, v) = ((p % r) as f32 + 0.5, (p / r) as f32 + 0.5);
+        (u - cx).powi(2) + (v - cy).powi(2) <= rad * rad
+    };
+    // Seen elsewhere: the hidden half of the disk at depth -0.1, green; one pixel outside the
+    // disk where the crop sees the background behind it (scene 0.6 > -0.1 + tolerance); one
+    // visible pixel.
+    let hidden: Vec<usize> = (0..r * r)
+        .filter(|&p| in_disk(p) && !crop.visible[p])
+        .collect();
+    let contradicted = 16 * r + 2; // left of the disk, background at 0.6
+    assert!(!in_disk(contradicted) && crop.scene_depth[contradicted] > 0.5);
+    let on_visible = 16 * r + 10;
+    assert!(crop.visible[on_visible]);
+    let mut depth = vec![f32::INFINITY; r * r];
+    let mut rgb = vec![0u8; 3 * r * r];
+    for &p in hidden.iter().chain([&contradicted, &on_visible]) {
+        depth[p] = -0.1;
+        rgb[3 * p..3 * p + 3].copy_from_slice(&[10, 200, 30]);
+    }
+    let with = crop
+        .clone()
+        .with_seen_elsewhere(deocc_completion::SeenElsewhere { rgb, depth });
+    let kept = with.seen_elsewhere.as_ref().expect("kept");
+    assert!(hidden.iter().all(|&p| kept.depth[p] == -0.1));
+    assert!(!kept.depth[contradicted].is_finite());
+    assert!(!kept.depth[on_visible].is_finite());
+    assert!(hidden.iter().all(|&p| with.prior[p]), "prior covers them");
+    assert!(!with.prior[contradicted]);
+
+    let rules = RulesCompleter {
+        resolution: r,
+        ..Default::default()
+    };
+    let (alone, both) = (rules.complete_one(&crop), rules.complete_one(&with));
+    for &p in &hidden {
+        assert!(both.amodal[p]);
+        assert_eq!(&both.rgb[3 * p..3 * p + 3], &[10, 200, 30]);
+        assert_eq!(both.depth[p], -0.1);
+    }
+    // Alone, the hidden half is filled from the visible colour and the plane at 0.
+    let p = hidden[hidden.len() / 2];
+    assert_eq!(&alone.rgb[3 * p..3 * p + 3], &[200, 40, 10]);
+    assert!(alone.depth[p].abs() < 1e-3);
+    // Visible pixels keep what this view saw.
+    assert_eq!(
+        &both.rgb[3 * on_visible..3 * on_visible + 3],
+        &[200, 40, 10]
+    );
+    assert_eq!(both.depth[on_visible], 0.0);
+    // Mirroring carries the observations along.
+    let m = with.mirrored();
+    let q = (p / r) * r + (r - 1 - p % r);
+    assert_eq!(m.seen_elsewhere.as_ref().unwrap().depth[q], -0.1);
+    assert_eq!(m.mirrored(), with);
+}

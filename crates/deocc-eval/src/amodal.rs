@@ -233,9 +233,26 @@ pub struct AmodalReport {
     pub depth: DepthFigures,
     /// mIoU with cross-view conditioning (rho) against without, on pairs with other views.
     pub cross_view: Option<Comparison>,
+    /// With the other views' observations reprojected into the crop (the pipeline's default with
+    /// several frames) against without, on the pairs where some landed; `None` for pairs made
+    /// without them or with them switched off.
+    pub other_views_observed: Option<OtherViewsObserved>,
     pub steps: StepSweep,
     pub miou_by_mask_threshold: BTreeMap<String, f64>,
     pub speed: SpeedFigures,
+}
+
+/// What the other views' reprojected observations change: each figure with them (method)
+/// against without (baseline), paired over the same pairs.
+#[derive(Debug, Clone, Serialize)]
+pub struct OtherViewsObserved {
+    pub pairs: usize,
+    pub miou_model: Comparison,
+    pub miou_prior: Comparison,
+    pub hidden_colour: Comparison,
+    pub near_hidden: Comparison,
+    pub far: Comparison,
+    pub far_bottles_vases: Comparison,
 }
 
 /// What one pair scores.
@@ -255,6 +272,85 @@ struct PairScores {
     near_rules: f64,
     far_model: f64,
     far_rules: f64,
+}
+
+/// One pair's scores (model and rules against the truth); the flag says whether the model's
+/// depth was median-filtered.
+fn score_pair(
+    data: &PairData,
+    i: usize,
+    cond: &CropCondition,
+    model: &Completion,
+    rule: &CropCompletion,
+    opts: &AmodalEvalOptions,
+) -> (PairScores, bool) {
+    let set = &data.set;
+    let r = data.resolution();
+    let truth: Vec<bool> = data.amodal_mask(i).iter().map(|&m| m > 0).collect();
+    let vis = &cond.visible;
+    let (region, legs) = bottom_region(&truth, vis, r);
+    let visible_px: Vec<usize> = (0..r * r).filter(|&p| vis[p]).collect();
+    let hidden: Vec<usize> = (0..r * r).filter(|&p| truth[p] && !vis[p]).collect();
+    let amodal: Vec<usize> = (0..r * r).filter(|&p| truth[p]).collect();
+    // The pipeline's rule (`PipelineOptions::generated_depth_median_for`).
+    let radius = depth_median_radius(
+        opts.depth_median_px,
+        opts.depth_median_max_crop_m,
+        set.crop_width_m[i],
+    );
+    let mut s = PairScores {
+        iou_model: iou(&model.amodal, &truth),
+        iou_prior: iou(&cond.prior, &truth),
+        iou_rules: iou(&rule.amodal, &truth),
+        iou_visible: iou(vis, &truth),
+        iou_hull: iou(&convex_hull_mask(vis, r), &truth),
+        chair_legs: legs && set.category[i] == Category::Chair as u8,
+        bottom_model: masked_iou(&model.amodal, &truth, &region),
+        bottom_prior: masked_iou(&cond.prior, &truth, &region),
+        colour_model: f64::NAN,
+        colour_rules: f64::NAN,
+        near_model: f64::NAN,
+        near_rules: f64::NAN,
+        far_model: f64::NAN,
+        far_rules: f64::NAN,
+    };
+    let whole_rgb = &set.whole_rgb[i * r * r * 3..(i + 1) * r * r * 3];
+    if !hidden.is_empty() {
+        s.colour_model = colour_error(&model.rgb, whole_rgb, &hidden);
+        // The rules' colour over the whole crop (they paint it inside their mask only): the
+        // nearest visible pixel's, or where other views saw the object, theirs.
+        let seen = cond.observed();
+        let fill = nearest_visible_colour(&seen.rgb, &seen.mask, r);
+        s.colour_rules = colour_error(&fill, whole_rgb, &hidden);
+    }
+    if hidden.len() >= 5 && visible_px.len() >= 5 {
+        let (obs, tn, tf) = (
+            data.visible_depth(i),
+            data.whole_depth(i),
+            data.whole_back_depth(i),
+        );
+        let case = DepthCase {
+            visible: &visible_px,
+            hidden: &hidden,
+            amodal: &amodal,
+            obs,
+            truth_near: tn,
+            truth_far: tf,
+        };
+        let median = |d: &[f32]| median_within(d, &model.amodal, r, radius);
+        if let (Some(m), Some(b)) = (
+            depth_errors(
+                &median(&model.depth_rel),
+                &median(&model.back_depth_rel),
+                &case,
+            ),
+            depth_errors(&rule.depth, &rule.back_depth, &case),
+        ) {
+            (s.near_model, s.far_model) = m;
+            (s.near_rules, s.far_rules) = b;
+        }
+    }
+    (s, radius > 0)
 }
 
 /// Completes `idx` with GL-DoT at `steps`, cross-view conditioned with `rho` on every other view
@@ -285,10 +381,14 @@ fn complete_model(
         } else {
             Vec::new()
         };
-        out.extend(
-            c.complete(&cond, &others, rho, steps, opts.seed)
-                .map_err(|e| EvalError::Model(e.to_string()))?,
-        );
+        let mut done = c
+            .complete(&cond, &others, rho, steps, opts.seed)
+            .map_err(|e| EvalError::Model(e.to_string()))?;
+        // As the pipeline's completer does: other views' observations win.
+        for (comp, &i) in done.iter_mut().zip(chunk) {
+            comp.keep_seen_elsewhere(&data.condition(i));
+        }
+        out.extend(done);
         tick(chunk.len());
     }
     Ok(out)
@@ -413,72 +513,11 @@ pub fn evaluate_amodal(
     let (mut cand_scores, mut cand_dist, mut cand_labels) = (Vec::new(), Vec::new(), Vec::new());
     for (k, &i) in idx.iter().enumerate() {
         let cond = &conds[k];
-        let truth: Vec<bool> = data.amodal_mask(i).iter().map(|&m| m > 0).collect();
         let vis = &cond.visible;
         let model = &model_out[k];
-        let rule = &rules_out[k];
-        let (region, legs) = bottom_region(&truth, vis, r);
-        let visible_px: Vec<usize> = (0..r * r).filter(|&p| vis[p]).collect();
-        let hidden: Vec<usize> = (0..r * r).filter(|&p| truth[p] && !vis[p]).collect();
-        let amodal: Vec<usize> = (0..r * r).filter(|&p| truth[p]).collect();
-        let mut s = PairScores {
-            iou_model: iou(&model.amodal, &truth),
-            iou_prior: iou(&cond.prior, &truth),
-            iou_rules: iou(&rule.amodal, &truth),
-            iou_visible: iou(vis, &truth),
-            iou_hull: iou(&convex_hull_mask(vis, r), &truth),
-            chair_legs: legs && set.category[i] == Category::Chair as u8,
-            bottom_model: masked_iou(&model.amodal, &truth, &region),
-            bottom_prior: masked_iou(&cond.prior, &truth, &region),
-            colour_model: f64::NAN,
-            colour_rules: f64::NAN,
-            near_model: f64::NAN,
-            near_rules: f64::NAN,
-            far_model: f64::NAN,
-            far_rules: f64::NAN,
-        };
-        let whole_rgb = &set.whole_rgb[i * r * r * 3..(i + 1) * r * r * 3];
-        if !hidden.is_empty() {
-            s.colour_model = colour_error(&model.rgb, whole_rgb, &hidden);
-            // The nearest visible colour over the whole crop (the rules completer paints it
-            // inside its mask only).
-            let fill = nearest_visible_colour(&cond.rgb, vis, r);
-            s.colour_rules = colour_error(&fill, whole_rgb, &hidden);
-        }
-        if hidden.len() >= 5 && visible_px.len() >= 5 {
-            let (obs, tn, tf) = (
-                data.visible_depth(i),
-                data.whole_depth(i),
-                data.whole_back_depth(i),
-            );
-            let case = DepthCase {
-                visible: &visible_px,
-                hidden: &hidden,
-                amodal: &amodal,
-                obs,
-                truth_near: tn,
-                truth_far: tf,
-            };
-            // The pipeline's rule (`PipelineOptions::generated_depth_median_for`).
-            let radius = depth_median_radius(
-                opts.depth_median_px,
-                opts.depth_median_max_crop_m,
-                set.crop_width_m[i],
-            );
-            depth_median_pairs += (radius > 0) as usize;
-            let median = |d: &[f32]| median_within(d, &model.amodal, r, radius);
-            if let (Some(m), Some(b)) = (
-                depth_errors(
-                    &median(&model.depth_rel),
-                    &median(&model.back_depth_rel),
-                    &case,
-                ),
-                depth_errors(&rule.depth, &rule.back_depth, &case),
-            ) {
-                (s.near_model, s.far_model) = m;
-                (s.near_rules, s.far_rules) = b;
-            }
-        }
+        let truth: Vec<bool> = data.amodal_mask(i).iter().map(|&m| m > 0).collect();
+        let (s, filtered) = score_pair(data, i, cond, model, &rules_out[k], opts);
+        depth_median_pairs += filtered as usize;
         // Candidate pixels: the model's score, and closeness to the prior.
         let nearest = nearest_seed(&cond.prior, r);
         for p in (0..r * r).filter(|&p| !vis[p] && cond.scene_depth[p] < 0.0) {
@@ -553,6 +592,47 @@ pub fn evaluate_amodal(
         cat == Category::Bottle as u8 || cat == Category::Vase as u8
     };
     let all = |_k: usize| true;
+
+    // The other views' observations: everything again without them.
+    let other_views_observed = if data.set.has_elsewhere() && data.seen_elsewhere() {
+        data.set_seen_elsewhere(false);
+        let without = complete_model(c, data, &idx, opts.main_steps, 0.0, opts, tick);
+        data.set_seen_elsewhere(true);
+        let without = without?;
+        let with: Vec<usize> = (0..n)
+            .filter(|&k| conds[k].seen_elsewhere.is_some())
+            .collect();
+        let base: Vec<PairScores> = with
+            .iter()
+            .map(|&k| {
+                let i = idx[k];
+                let cond = data.condition_without_elsewhere(i);
+                let rule = rules.complete_one(&cond);
+                score_pair(data, i, &cond, &without[k], &rule, opts).0
+            })
+            .collect();
+        let pair = |f: &dyn Fn(&PairScores) -> f64, keep: &dyn Fn(usize) -> bool, seed: u64| {
+            let ks: Vec<usize> = (0..with.len()).filter(|&j| keep(with[j])).collect();
+            compare(
+                &ks.iter().map(|&j| f(&scores[with[j]])).collect::<Vec<_>>(),
+                &ks.iter().map(|&j| f(&base[j])).collect::<Vec<_>>(),
+                &ks.iter().map(|&j| groups[with[j]]).collect::<Vec<_>>(),
+                opts.bootstrap_resamples,
+                opts.seed ^ seed,
+            )
+        };
+        Some(OtherViewsObserved {
+            pairs: with.len(),
+            miou_model: pair(&|s| s.iou_model, &all, 41),
+            miou_prior: pair(&|s| s.iou_prior, &all, 43),
+            hidden_colour: pair(&|s| s.colour_model, &all, 45),
+            near_hidden: pair(&|s| s.near_model, &all, 47),
+            far: pair(&|s| s.far_model, &all, 49),
+            far_bottles_vases: pair(&|s| s.far_model, &is_bottle_vase, 51),
+        })
+    } else {
+        None
+    };
 
     // Cross-view: the pairs with other views of their object.
     let cross_view = if opts.skip_cross_view {
@@ -750,6 +830,7 @@ pub fn evaluate_amodal(
                 .collect(),
         },
         cross_view,
+        other_views_observed,
         steps,
         miou_by_mask_threshold,
         speed,

@@ -220,6 +220,25 @@ impl Camera {
     pub fn center(&self) -> Point3<f32> {
         Point3::from(self.world_from_camera.translation.vector)
     }
+
+    /// The camera that sees the square window (`x0`, `y0`, `side`; image pixels) of this one's
+    /// image at `res` x `res` pixels: same pose, intrinsics scaled and shifted.
+    pub fn crop(&self, x0: f32, y0: f32, side: f32, res: u32) -> Result<Camera> {
+        let k = &self.intrinsics;
+        let s = res as f32 / side;
+        let intrinsics = Intrinsics::new(
+            k.fx() * s,
+            k.fy() * s,
+            (k.cx() - x0) * s,
+            (k.cy() - y0) * s,
+            res,
+            res,
+        )?;
+        Ok(Camera {
+            intrinsics,
+            world_from_camera: self.world_from_camera,
+        })
+    }
 }
 
 /// A `world_from_camera` pose for a camera at `eye` looking at `target`, with image "up" as close

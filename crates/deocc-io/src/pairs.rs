@@ -32,6 +32,11 @@ pub struct PairSet {
     /// The crop's width in metres at the object's median visible depth: the unit of relative
     /// depth (NaN where unknown: shards written before it was stored).
     pub crop_width_m: Vec<f32>, // (N)
+    /// Other views' observations of the object reprojected into the crop: colour (N, R, R, 3)
+    /// and relative depth (N, R, R), infinite where no point landed. Both empty in sets made without
+    /// them (shards from before they were stored).
+    pub elsewhere_rgb: Vec<u8>,
+    pub elsewhere_depth: Vec<f32>,
 }
 
 impl PairSet {
@@ -61,9 +66,35 @@ impl PairSet {
         self.held_out.truncate(n);
         self.occlusion.truncate(n);
         self.crop_width_m.truncate(n);
+        if self.has_elsewhere() {
+            self.elsewhere_rgb.truncate(n * px * 3);
+            self.elsewhere_depth.truncate(n * px);
+        }
+    }
+
+    /// Whether the set carries other views' reprojected observations.
+    pub fn has_elsewhere(&self) -> bool {
+        !self.elsewhere_depth.is_empty()
     }
 
     pub fn extend(&mut self, o: &PairSet) {
+        // A set with reprojected observations and one without: the latter's pairs have none.
+        if self.has_elsewhere() || o.has_elsewhere() {
+            let (mine, theirs) = (self.len() * self.pixels(), o.len() * o.pixels());
+            if !self.has_elsewhere() {
+                self.elsewhere_rgb = vec![0; 3 * mine];
+                self.elsewhere_depth = vec![f32::INFINITY; mine];
+            }
+            if o.has_elsewhere() {
+                self.elsewhere_rgb.extend_from_slice(&o.elsewhere_rgb);
+                self.elsewhere_depth.extend_from_slice(&o.elsewhere_depth);
+            } else {
+                self.elsewhere_rgb
+                    .extend(std::iter::repeat_n(0, 3 * theirs));
+                self.elsewhere_depth
+                    .extend(std::iter::repeat_n(f32::INFINITY, theirs));
+            }
+        }
         self.resolution = o.resolution;
         self.crop_rgb.extend_from_slice(&o.crop_rgb);
         self.visible_mask.extend_from_slice(&o.visible_mask);
@@ -156,8 +187,25 @@ pub fn save_pairs(path: &Path, set: &PairSet) -> Result<()> {
             bytes_of_f32(&set.crop_width_m),
         ),
     ];
+    let elsewhere = set.has_elsewhere().then(|| {
+        [
+            (
+                "elsewhere_rgb",
+                Dtype::U8,
+                vec![n, r, r, 3],
+                set.elsewhere_rgb.clone(),
+            ),
+            (
+                "elsewhere_depth",
+                Dtype::F32,
+                vec![n, r, r],
+                bytes_of_f32(&set.elsewhere_depth),
+            ),
+        ]
+    });
     let views: Vec<(&str, TensorView)> = f
         .iter()
+        .chain(elsewhere.iter().flatten())
         .map(|(name, dt, shape, data)| {
             TensorView::new(*dt, shape.clone(), data).map(|v| (*name, v))
         })
@@ -233,6 +281,15 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
             Ok(_) => f32s(get("crop_width_m", Dtype::F32)?.1),
             Err(_) => vec![f32::NAN; n],
         },
+        // Optional: sets made without other views' observations.
+        elsewhere_rgb: match st.tensor("elsewhere_rgb") {
+            Ok(_) => get("elsewhere_rgb", Dtype::U8)?.1.to_vec(),
+            Err(_) => Vec::new(),
+        },
+        elsewhere_depth: match st.tensor("elsewhere_depth") {
+            Ok(_) => f32s(get("elsewhere_depth", Dtype::F32)?.1),
+            Err(_) => Vec::new(),
+        },
     };
     let px = r * r;
     let ok = set.visible_mask.len() == n * px
@@ -246,7 +303,10 @@ pub fn load_pairs(path: &Path) -> Result<PairSet> {
         && set.category.len() == n
         && set.held_out.len() == n
         && set.occlusion.len() == n
-        && set.crop_width_m.len() == n;
+        && set.crop_width_m.len() == n
+        && (set.elsewhere_rgb.len() == n * px * 3 || set.elsewhere_rgb.is_empty())
+        && (set.elsewhere_depth.len() == n * px || set.elsewhere_depth.is_empty())
+        && set.elsewhere_rgb.is_empty() == set.elsewhere_depth.is_empty();
     if !ok {
         return Err(err("tensor sizes disagree with the number of pairs".into()));
     }

@@ -420,6 +420,8 @@ fn two_pairs() -> deocc_io::pairs::PairSet {
         held_out: vec![0, 1],
         occlusion: vec![0.25, 0.5],
         crop_width_m: vec![0.31, 1.52],
+        elsewhere_rgb: Vec::new(),
+        elsewhere_depth: Vec::new(),
     }
 }
 
@@ -459,4 +461,43 @@ fn pairs_round_trip_with_crop_width_and_older_shards_load_without_it() {
     both.truncate(3);
     assert_eq!(both.crop_width_m, vec![0.31, 1.52, 0.31]);
     assert_eq!(both.len(), 3);
+}
+
+/// Other views' observations travel with their pairs: saved and loaded, truncated, and a set
+/// without them extended by one with them (and the reverse) gives its own pairs none.
+#[test]
+fn pairs_keep_other_views_observations_and_sets_without_them_mix_in() {
+    use deocc_io::pairs::{load_pairs, save_pairs};
+    let dir = tempfile::tempdir().unwrap();
+    let plain = two_pairs();
+    let mut seen = two_pairs();
+    seen.elsewhere_rgb = (0..2 * 4 * 3).map(|i| 100 + i as u8).collect();
+    seen.elsewhere_depth = vec![0.1, f32::INFINITY, -0.2, 0.3, f32::INFINITY, 0.0, 0.5, -0.5];
+    assert!(seen.has_elsewhere() && !plain.has_elsewhere());
+    let path = dir.path().join("seen.safetensors");
+    save_pairs(&path, &seen).unwrap();
+    assert_eq!(load_pairs(&path).unwrap(), seen);
+    save_pairs(&path, &plain).unwrap();
+    assert!(!load_pairs(&path).unwrap().has_elsewhere());
+
+    let mut mixed = plain.clone();
+    mixed.extend(&seen);
+    assert_eq!(mixed.len(), 4);
+    assert!(mixed.elsewhere_depth[..8].iter().all(|d| d.is_infinite()));
+    assert_eq!(mixed.elsewhere_depth[8..], seen.elsewhere_depth[..]);
+    assert_eq!(mixed.elsewhere_rgb[24..], seen.elsewhere_rgb[..]);
+    let mut other_way = seen.clone();
+    other_way.extend(&plain);
+    assert_eq!(other_way.elsewhere_depth[..8], seen.elsewhere_depth[..]);
+    assert!(other_way.elsewhere_depth[8..]
+        .iter()
+        .all(|d| d.is_infinite()));
+    other_way.truncate(1);
+    assert_eq!(
+        other_way.elsewhere_depth,
+        seen.elsewhere_depth[..4].to_vec()
+    );
+    assert_eq!(other_way.elsewhere_rgb, seen.elsewhere_rgb[..12].to_vec());
+    save_pairs(&path, &mixed).unwrap();
+    assert_eq!(load_pairs(&path).unwrap(), mixed);
 }

@@ -4,10 +4,11 @@
 
 use std::collections::HashMap;
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use candle_core::{Device, Result, Tensor};
 use deocc_completion::priors::{ellipse_prior, hull_prior};
-use deocc_completion::{CropCondition, MaskPrior};
+use deocc_completion::{CropCondition, MaskPrior, SeenElsewhere};
 use deocc_io::pairs::{load_pairs, PairSet};
 use rand::Rng;
 
@@ -23,6 +24,9 @@ pub struct PairData {
     mask_prior: MaskPrior,
     /// The residual base of the model the batches are for.
     base: ResidualBase,
+    /// Whether conditions carry the other views' reprojected observations (when the set has
+    /// them), as the pipeline's do with several views.
+    seen_elsewhere: AtomicBool,
 }
 
 impl PairData {
@@ -36,7 +40,25 @@ impl PairData {
             groups,
             mask_prior: MaskPrior::HullInFront,
             base: ResidualBase::Visible,
+            seen_elsewhere: AtomicBool::new(true),
         }
+    }
+
+    /// The same pairs with (`true`, the default) or without the other views' reprojected
+    /// observations in their conditions.
+    pub fn with_seen_elsewhere(self, on: bool) -> Self {
+        self.set_seen_elsewhere(on);
+        self
+    }
+
+    /// Switches the other views' observations on or off (for comparing the two on one set).
+    pub fn set_seen_elsewhere(&self, on: bool) {
+        self.seen_elsewhere.store(on, Ordering::Relaxed);
+    }
+
+    /// Whether conditions carry the other views' observations (when the set has them).
+    pub fn seen_elsewhere(&self) -> bool {
+        self.seen_elsewhere.load(Ordering::Relaxed)
     }
 
     /// The same pairs with targets made for a model with this residual base (outside the object
@@ -89,9 +111,23 @@ impl PairData {
         (!others.is_empty()).then(|| others[rng.random_range(0..others.len())])
     }
 
-    /// Pair `i`'s condition as the pipeline would build it (no metric width: pairs do not carry
-    /// one).
+    /// Pair `i`'s condition as the pipeline would build it (no metric width: training sets do
+    /// not need one), with the other views' observations when the set has them and they are on.
     pub fn condition(&self, i: usize) -> CropCondition {
+        let n = self.set.pixels();
+        let c = self.condition_without_elsewhere(i);
+        if self.seen_elsewhere() && self.set.has_elsewhere() {
+            c.with_seen_elsewhere(SeenElsewhere {
+                rgb: self.set.elsewhere_rgb[i * n * 3..(i + 1) * n * 3].to_vec(),
+                depth: self.set.elsewhere_depth[i * n..(i + 1) * n].to_vec(),
+            })
+        } else {
+            c
+        }
+    }
+
+    /// Pair `i`'s condition from its own view alone.
+    pub fn condition_without_elsewhere(&self, i: usize) -> CropCondition {
         let (n, r) = (self.set.pixels(), self.resolution());
         CropCondition::new(
             r,

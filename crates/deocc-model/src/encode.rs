@@ -56,7 +56,8 @@ pub fn write_condition(c: &CropCondition, prior: MaskPrior, out: &mut [f32]) {
         ..RulesCompleter::default()
     }
     .complete_one(c);
-    let fill = nearest_visible_colour(&c.rgb, &c.visible, c.resolution);
+    let seen = c.observed();
+    let fill = nearest_visible_colour(&seen.rgb, &seen.mask, c.resolution);
     for (k, o) in out.chunks_exact_mut(COND_CHANNELS).enumerate() {
         for (o, &v) in o[7..10].iter_mut().zip(&fill[3 * k..3 * k + 3]) {
             *o = v as f32 / 127.5 - 1.0;

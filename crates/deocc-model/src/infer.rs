@@ -470,7 +470,8 @@ impl deocc_completion::Completer for GlDotCompleter {
         Ok(done
             .into_iter()
             .zip(batch)
-            .map(|(c, req)| {
+            .map(|(mut c, req)| {
+                c.keep_seen_elsewhere(req.condition);
                 c.into_crop_completion(&req.condition.visible, self.model.config.mask_head)
             })
             .collect())
@@ -478,6 +479,25 @@ impl deocc_completion::Completer for GlDotCompleter {
 }
 
 impl Completion {
+    /// Where other views observed the object ([`CropCondition::seen_elsewhere`]), their
+    /// observation wins over the generated one, as the visible pixels' does: the pixel is in the
+    /// mask, with their colour and near-side depth (the far side stays generated).
+    ///
+    /// [`CropCondition::seen_elsewhere`]: deocc_completion::CropCondition::seen_elsewhere
+    pub fn keep_seen_elsewhere(&mut self, c: &deocc_completion::CropCondition) {
+        let Some(seen) = &c.seen_elsewhere else {
+            return;
+        };
+        for (k, &d) in seen.depth.iter().enumerate() {
+            if d.is_finite() && k < self.amodal.len() {
+                self.amodal[k] = true;
+                self.mask_score[k] = self.mask_score[k].max(1.0);
+                self.depth_rel[k] = d;
+                self.rgb[3 * k..3 * k + 3].copy_from_slice(&seen.rgb[3 * k..3 * k + 3]);
+            }
+        }
+    }
+
     /// The plain-data completion of the pipeline's seam. A mask head's score is a probability;
     /// the flow model's mask channel is not, and `(score + 1) / 2` clamped to [0, 1] stands in
     /// for one (1 on visible pixels, 0 where the free-space constraint rules the object out).

@@ -15,7 +15,7 @@ use deocc_completion::{
 };
 use deocc_io::scene::SceneInput;
 
-use crate::crops::{make_crop, CropWindow};
+use crate::crops::{instance_pixels, make_crop, seen_elsewhere, CropWindow};
 use crate::stats::InstanceStats;
 use crate::{PipelineError, PipelineOptions};
 
@@ -76,6 +76,11 @@ pub fn complete_instances(
 ) -> Result<(Vec<CompletedCrop>, Vec<DeclinedCrop>), PipelineError> {
     let mut jobs: Vec<(usize, CropWindow, CropCondition)> = Vec::new();
     let mut declined = Vec::new();
+    let pixels = if opts.use_other_views && scene.frames.len() > 1 {
+        instance_pixels(&scene.frames)
+    } else {
+        Vec::new()
+    };
     for (&id, views) in selected {
         for &v in views {
             let Some(st) = stats[v].get(&id) else {
@@ -93,6 +98,10 @@ pub fn complete_instances(
             match routed {
                 Ok((k, cond)) => {
                     let Some(window) = built.take() else { continue };
+                    let cond = match seen_elsewhere(&scene.frames, &pixels, &window) {
+                        Some(seen) => cond.with_seen_elsewhere(seen),
+                        None => cond,
+                    };
                     jobs.push((k, window, cond));
                 }
                 Err(reasons) => {

@@ -1,8 +1,12 @@
 //! Crops: a square window of a view around an instance's visible box, resampled to the
 //! completer's resolution, as the [`CropCondition`] a completer reads and the [`CropWindow`] that
-//! maps its pixels back to the image.
+//! maps its pixels back to the image; with several frames, what the others observed of the
+//! instance, reprojected into the crop ([`seen_elsewhere`]).
 
-use deocc_completion::CropCondition;
+use std::collections::BTreeMap;
+
+use deocc_completion::{CropCondition, SeenElsewhere};
+use deocc_geometry::reproject::{reproject_views, SourceView};
 use deocc_io::scene::Frame;
 
 use crate::stats::InstanceStats;
@@ -29,6 +33,8 @@ pub struct CropWindow {
     pub source_pixel: Vec<Option<usize>>,
     /// Metres per unit of relative depth: the crop's width at the object's median visible depth.
     pub metric_scale_m: f32,
+    /// The object's median visible depth, metres (relative depth 0).
+    pub median_depth_m: f32,
 }
 
 impl CropWindow {
@@ -123,6 +129,69 @@ pub fn make_crop(
         observed_depth_m: observed,
         source_pixel,
         metric_scale_m: scale_m,
+        median_depth_m: m,
     };
     Some((window, condition))
+}
+
+/// Every frame's pixels of each instance (with depth), for [`seen_elsewhere`].
+pub fn instance_pixels(frames: &[Frame]) -> Vec<BTreeMap<u16, Vec<u32>>> {
+    frames
+        .iter()
+        .map(|f| {
+            let mut m: BTreeMap<u16, Vec<u32>> = BTreeMap::new();
+            if let Some(inst) = &f.instances {
+                for (i, (&id, &d)) in inst.ids.iter().zip(f.depth.data()).enumerate() {
+                    if id != 0 && d > 0.0 {
+                        m.entry(id).or_default().push(i as u32);
+                    }
+                }
+            }
+            m
+        })
+        .collect()
+}
+
+/// What the other frames observed of the window's instance, reprojected into its crop
+/// (`deocc_geometry::reproject`) in relative depth; `None` when no other frame's point lands
+/// in it. `pixels` is [`instance_pixels`] of `frames`.
+pub fn seen_elsewhere(
+    frames: &[Frame],
+    pixels: &[BTreeMap<u16, Vec<u32>>],
+    window: &CropWindow,
+) -> Option<SeenElsewhere> {
+    let sources: Vec<SourceView<'_>> = frames
+        .iter()
+        .zip(pixels)
+        .enumerate()
+        .filter(|&(v, _)| v != window.view)
+        .filter_map(|(_, (f, px))| {
+            Some(SourceView {
+                camera: &f.camera,
+                depth_m: f.depth.data(),
+                rgb: f.rgb.as_raw(),
+                pixels: px.get(&window.instance_id)?,
+            })
+        })
+        .collect();
+    if sources.is_empty() {
+        return None;
+    }
+    let camera = frames[window.view]
+        .camera
+        .crop(window.x0, window.y0, window.side, window.resolution as u32)
+        .ok()?;
+    let seen = reproject_views(&camera, &sources);
+    if seen.hits() == 0 {
+        return None;
+    }
+    let (m, s) = (window.median_depth_m, window.metric_scale_m);
+    Some(SeenElsewhere {
+        rgb: seen.rgb,
+        depth: seen
+            .depth_m
+            .iter()
+            .map(|&d| if d > 0.0 { (d - m) / s } else { f32::INFINITY })
+            .collect(),
+    })
 }

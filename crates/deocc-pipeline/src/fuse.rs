@@ -51,6 +51,10 @@ pub struct FuseOptions<'a> {
     /// Thickness cap (metres; 0 = off): a far-side point more than this behind its near side
     /// is not generated.
     pub max_thickness_m: f32,
+    /// (r*r) relative depth where other frames observed the object (the crop's
+    /// `seen_elsewhere`, infinite elsewhere): the near side there is their observation, already in
+    /// the cloud, so no near-side point is generated; the far side is placed behind it.
+    pub seen_elsewhere: Option<&'a [f32]>,
 }
 
 /// The median of `values` over the `mask` pixels of each mask pixel's (2 radius + 1)^2 window
@@ -181,9 +185,15 @@ pub fn fuse_completion(
             continue;
         }
         let obs = window.observed_depth_m[k];
-        // Near side: observed where visible, generated where revealed.
+        let elsewhere = opts
+            .seen_elsewhere
+            .and_then(|d| d.get(k).copied())
+            .filter(|d| d.is_finite());
+        // Near side: observed where visible or seen by another frame, generated where revealed.
         let front = if is_visible {
             obs
+        } else if let Some(rel) = elsewhere {
+            window.median_depth_m + rel * window.metric_scale_m
         } else {
             let z = fit.apply(near_depth[k] as f64) as f32;
             if !(z.is_finite() && z > 0.05) {

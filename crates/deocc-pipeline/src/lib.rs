@@ -255,6 +255,7 @@ pub fn run_observed(
                     Provenance::Rules => opts.rules_max_thickness_m,
                     _ => 0.0,
                 },
+                seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
             },
         );
         if rec.accepted {

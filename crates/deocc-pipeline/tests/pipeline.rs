@@ -1041,3 +1041,65 @@ fn floors_and_walls_are_plane_pieces_tables_are_not() {
         "{structure_found} of {structure} floors and walls found"
     );
 }
+
+/// Other frames' observations reprojected into a crop (`crops::seen_elsewhere`): a frame seen
+/// again from its own camera lands on its own visible pixels at their depth, so crop window,
+/// crop camera and reprojection agree; and another frame of the scene adds pixels this view
+/// does not see.
+#[test]
+fn a_frame_reprojected_into_its_own_crop_lands_on_its_visible_pixels() {
+    use deocc_pipeline::crops::{instance_pixels, make_crop, seen_elsewhere};
+    use deocc_pipeline::stats::view_stats;
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let frame = &scene.frames[0];
+    let stats = view_stats(frame);
+    // The largest instance that is not room structure.
+    let (&id, st) = stats
+        .iter()
+        .filter(|(id, _)| !scene.structure_ids.contains(id))
+        .max_by_key(|(_, s)| s.pixels)
+        .unwrap();
+    let (window, cond) = make_crop(frame, 0, id, st, 32).unwrap();
+    let twice = vec![frame.clone(), frame.clone()];
+    let mut again = window.clone();
+    again.view = 1; // the same camera as "another" frame
+    let seen = seen_elsewhere(&twice, &instance_pixels(&twice), &again).expect("lands");
+    let (mut on_visible, mut at_depth, mut off_visible) = (0, 0, 0);
+    for k in 0..32 * 32 {
+        let d = seen.depth[k];
+        if !d.is_finite() {
+            continue;
+        }
+        if cond.visible[k] {
+            on_visible += 1;
+            // The crop samples one image pixel at its centre; the reprojection the nearest
+            // surface anywhere in it, which differs where the object's own depth steps.
+            at_depth += ((d - cond.visible_depth[k]).abs() < 0.02) as usize;
+        } else {
+            off_visible += 1;
+        }
+    }
+    let visible = cond.visible_px();
+    assert!(on_visible * 10 >= visible * 9, "{on_visible} of {visible}");
+    assert!(
+        at_depth * 10 >= on_visible * 9,
+        "{at_depth} of {on_visible} at their depth"
+    );
+    // Only the mask's edge ring may be covered without being visible at the pixel centre.
+    assert!(off_visible * 4 <= visible, "{off_visible} beyond {visible}");
+
+    // The scene's other frames see parts of it this crop does not.
+    let pixels = instance_pixels(&scene.frames);
+    if let Some(other) = seen_elsewhere(&scene.frames, &pixels, &window) {
+        let with = cond.clone().with_seen_elsewhere(other);
+        let added = with
+            .seen_elsewhere
+            .as_ref()
+            .map_or(0, |s| s.depth.iter().filter(|d| d.is_finite()).count());
+        assert!(added <= 32 * 32 - visible);
+        assert!(
+            with.prior.iter().filter(|&&p| p).count() >= cond.prior.iter().filter(|&&p| p).count()
+        );
+    }
+}

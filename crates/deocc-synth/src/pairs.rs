@@ -19,9 +19,13 @@
 //!
 //! Crops are rendered with a camera whose intrinsics map the crop window to `resolution` pixels,
 //! so there is no resampling blur. Objects whose box leaves the image are skipped (truncation is
-//! not occlusion). Several views of each object share a `group` id for cross-view conditioning.
+//! not occlusion). Several views of each object share a `group` id for cross-view conditioning,
+//! and each pair carries what the other views observed of its object, reprojected into its crop
+//! (`elsewhere_rgb`, `elsewhere_depth`: `deocc_geometry::reproject`), as the pipeline computes it
+//! from its other frames.
 
-use deocc_geometry::camera::{Camera, Intrinsics};
+use deocc_geometry::camera::Camera;
+use deocc_geometry::reproject::{reproject_views, SourceView};
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
@@ -68,24 +72,6 @@ impl Default for PairConfig {
             edge_objects: false,
         }
     }
-}
-
-/// The camera that renders the square window (x0, y0, side) of `camera`'s image at `res` pixels.
-pub fn crop_camera(camera: &Camera, x0: f32, y0: f32, side: f32, res: u32) -> Result<Camera> {
-    let k = &camera.intrinsics;
-    let s = res as f32 / side;
-    let intrinsics = Intrinsics::new(
-        k.fx() * s,
-        k.fy() * s,
-        (k.cx() - x0) * s,
-        (k.cy() - y0) * s,
-        res,
-        res,
-    )?;
-    Ok(Camera {
-        intrinsics,
-        world_from_camera: camera.world_from_camera,
-    })
 }
 
 /// The box (u0, v0, u1, v1) of an object's projected vertices; `None` if any is behind the camera.
@@ -136,9 +122,31 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
         ..Default::default()
     };
     let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(scene.seed ^ 0x7061_6972);
-    for camera in &scene.cameras {
-        let full_view = crate::render::render_scene(camera, scene, &tris);
-        let boxes = visible_boxes(&full_view);
+    // Every view's render, colour and object pixels, for the other views' observations.
+    let views: Vec<(Frame, Vec<u8>)> = scene
+        .cameras
+        .iter()
+        .map(|camera| {
+            let frame = crate::render::render_scene(camera, scene, &tris);
+            let rgb = shade(&frame, camera, scene, &tris, [0, 0, 0]).into_raw();
+            (frame, rgb)
+        })
+        .collect();
+    let object_pixels: Vec<std::collections::HashMap<u16, Vec<u32>>> = views
+        .iter()
+        .map(|(f, _)| {
+            let mut m: std::collections::HashMap<u16, Vec<u32>> = Default::default();
+            for (i, (&id, &d)) in f.instance.iter().zip(&f.depth_m).enumerate() {
+                if id != 0 && d > 0.0 {
+                    m.entry(id).or_default().push(i as u32);
+                }
+            }
+            m
+        })
+        .collect();
+    for (ci, camera) in scene.cameras.iter().enumerate() {
+        let full_view = &views[ci].0;
+        let boxes = visible_boxes(full_view);
         let (w, h) = (
             camera.intrinsics.width() as f32,
             camera.intrinsics.height() as f32,
@@ -169,7 +177,7 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             let mut jitter = || (r.random::<f32>() - 0.5) * 0.2 * crop_side;
             let (cx, cy) = ((vu0 + vu1) / 2.0 + jitter(), (vv0 + vv1) / 2.0 + jitter());
             let (x0, y0) = (cx - crop_side / 2.0, cy - crop_side / 2.0);
-            let crop = crop_camera(camera, x0, y0, crop_side, res)?;
+            let crop = camera.crop(x0, y0, crop_side, res)?;
             let mut full = Frame::new(res, res);
             let inst = |ti: usize| scene.objects[tris.object[ti] as usize].instance_id;
             rasterize(&crop, &tris, 0..tris.corners.len(), &inst, &mut full);
@@ -275,6 +283,28 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             out.held_out.push(obj.category.is_held_out() as u8);
             out.occlusion.push(occlusion);
             out.crop_width_m.push(s);
+            // What the other views saw of the object, from this crop's camera.
+            let sources: Vec<SourceView<'_>> = (0..scene.cameras.len())
+                .filter(|&cj| cj != ci)
+                .filter_map(|cj| {
+                    let pixels = object_pixels[cj].get(&obj.instance_id)?;
+                    Some(SourceView {
+                        camera: &scene.cameras[cj],
+                        depth_m: &views[cj].0.depth_m,
+                        rgb: &views[cj].1,
+                        pixels,
+                    })
+                })
+                .collect();
+            let seen = reproject_views(&crop, &sources);
+            out.elsewhere_rgb.extend_from_slice(&seen.rgb);
+            out.elsewhere_depth.extend(seen.depth_m.iter().map(|&d| {
+                if d > 0.0 {
+                    (d - m) / s
+                } else {
+                    f32::INFINITY
+                }
+            }));
         }
     }
     Ok(out)

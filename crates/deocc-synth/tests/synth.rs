@@ -277,6 +277,72 @@ fn pairs_are_consistent_and_round_trip() {
         "{:?}",
         set.crop_width_m
     );
+    // What other views saw, reprojected into each crop, is the object where this view does not
+    // see it: on the object's silhouette (or the ring of pixels around it that its edge points
+    // partly cover), at its near side's depth and in its colour (the light is fixed in the
+    // world, so the colour does not depend on the view).
+    assert_eq!(set.elsewhere_depth.len(), set.len() * px);
+    let r = set.resolution as i64;
+    let (mut on_object, mut far_off, mut depth_ok) = (0, 0, 0);
+    let (mut interior_px, mut colour_ok) = (0, 0);
+    for k in 0..set.len() {
+        let amo = &set.amodal_mask[k * px..(k + 1) * px];
+        let near_object = |i: usize| {
+            let (u, v) = ((i as i64) % r, (i as i64) / r);
+            (-1..=1).any(|dv| {
+                (-1..=1).any(|du| {
+                    let (x, y) = (u + du, v + dv);
+                    x >= 0 && y >= 0 && x < r && y < r && amo[(y * r + x) as usize] > 0
+                })
+            })
+        };
+        let interior = |i: usize| {
+            let (u, v) = ((i as i64) % r, (i as i64) / r);
+            (-1..=1).all(|dv| {
+                (-1..=1).all(|du| {
+                    let (x, y) = (u + du, v + dv);
+                    x >= 0 && y >= 0 && x < r && y < r && amo[(y * r + x) as usize] > 0
+                })
+            })
+        };
+        for (i, &a) in amo.iter().enumerate() {
+            let j = k * px + i;
+            let d = set.elsewhere_depth[j];
+            if !d.is_finite() || set.visible_mask[j] > 0 {
+                continue;
+            }
+            if a == 0 {
+                far_off += (!near_object(i)) as usize;
+                continue;
+            }
+            on_object += 1;
+            depth_ok += ((d - set.whole_depth[j]).abs() < 0.03) as usize;
+            let diff = (0..3)
+                .map(|c| set.elsewhere_rgb[3 * j + c].abs_diff(set.whole_rgb[3 * j + c]))
+                .max()
+                .unwrap();
+            // Inside the silhouette (not on its edge, where the nearest point may lie on a side
+            // face the pixel centre does not see).
+            if interior(i) {
+                interior_px += 1;
+                colour_ok += (diff <= 8) as usize;
+            }
+        }
+    }
+    assert!(
+        on_object > 100,
+        "{on_object} hidden object pixels seen elsewhere"
+    );
+    assert_eq!(far_off, 0, "points more than a pixel off the silhouette");
+    assert!(
+        depth_ok * 100 >= on_object * 90,
+        "{depth_ok} of {on_object} at its depth"
+    );
+    assert!(interior_px > 50, "{interior_px} interior pixels");
+    assert!(
+        colour_ok * 100 >= interior_px * 80,
+        "{colour_ok} of {interior_px} in its colour"
+    );
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("p.safetensors");
     save_pairs(&p, &set).unwrap();
