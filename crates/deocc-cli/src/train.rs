@@ -68,6 +68,11 @@ pub struct TrainArgs {
     /// Weight of the mean head's L1 loss against the flow loss.
     #[arg(long, default_value_t = 1.0)]
     mean_loss_weight: f32,
+    /// Train on conditions carrying what the other views observed of each object (pairs made
+    /// since they store it), as the pipeline gives them with several frames. Off: the shipped
+    /// weights were trained without.
+    #[arg(long)]
+    other_views_observed: bool,
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
@@ -137,6 +142,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         channel_loss_weights: a.channel_loss_weights,
         mask_loss_weight: a.mask_loss_weight,
         mean_loss_weight: a.mean_loss_weight,
+        other_views_observed: a.other_views_observed,
         ..TrainConfig::default()
     };
     let opts = TrainRunOptions {

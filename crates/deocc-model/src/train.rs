@@ -87,6 +87,11 @@ pub struct TrainConfig {
     /// Inference, not training: with a mean head, colour and depth are the mean head's, read at
     /// the first step (one forward pass); off, they are the flow's sample after all steps.
     pub inference_reads_mean: bool,
+    /// Train on conditions that carry the other views' reprojected observations (where the
+    /// pairs have them). Off by default: the shipped weights were trained without them, and
+    /// the README's training chain reproduces those.
+    #[serde(default)]
+    pub other_views_observed: bool,
 }
 
 impl Default for TrainConfig {
@@ -112,6 +117,7 @@ impl Default for TrainConfig {
             mask_head_noise_fraction: 0.5,
             mean_loss_weight: 1.0,
             inference_reads_mean: true,
+            other_views_observed: false,
         }
     }
 }
@@ -991,13 +997,15 @@ pub fn train_run(
     let sizes = shard_sizes(&opts.shards)?;
     let prior = trainer.config.model.mask_prior;
     let base = trainer.config.model.base;
+    let observed = trainer.config.other_views_observed;
     let load = |epoch: u64| -> Result<PairData> {
         let pick = resident_shards(&sizes, opts.resident_pairs, trainer_seed(opts), epoch);
         let files: Vec<&PathBuf> = pick.iter().map(|&k| &opts.shards[k]).collect();
         let data = PairData::load(&files)
             .map_err(|e| TrainError::Config(e.to_string()))?
             .with_mask_prior(prior)
-            .with_base(base);
+            .with_base(base)
+            .with_seen_elsewhere(observed);
         Ok(data)
     };
     let every = opts.reshuffle_every;
