@@ -275,3 +275,100 @@ mod tests {
         assert_eq!(median_within(&values, &mask, r, 0), values);
     }
 }
+
+#[cfg(test)]
+mod seen_elsewhere_tests {
+    use deocc_completion::{CropCompletion, Provenance};
+    use deocc_geometry::camera::{Camera, Intrinsics};
+    use deocc_geometry::DepthMap;
+    use deocc_io::scene::Frame;
+
+    use super::{fuse_completion, FuseOptions};
+    use crate::crops::CropWindow;
+
+    /// An 8x8 view: the object's left half visible (depth 1 m + 1 cm a column), its right half
+    /// behind an occluder at 0.5 m; the crop is the whole image, one relative unit a metre.
+    fn setup() -> (CropWindow, Vec<bool>, CropCompletion, Frame) {
+        let r = 8;
+        let visible: Vec<bool> = (0..r * r).map(|k| k % r < 4).collect();
+        let near = |k: usize| 1.0 + 0.01 * (k % r) as f32;
+        let observed: Vec<f32> = (0..r * r)
+            .map(|k| if visible[k] { near(k) } else { 0.5 })
+            .collect();
+        let window = CropWindow {
+            instance_id: 1,
+            view: 0,
+            x0: 0.0,
+            y0: 0.0,
+            side: r as f32,
+            resolution: r,
+            observed_depth_m: observed.clone(),
+            source_pixel: (0..r * r).map(Some).collect(),
+            metric_scale_m: 1.0,
+            median_depth_m: 1.0,
+        };
+        let completion = CropCompletion {
+            amodal: vec![true; r * r],
+            mask_probability: vec![1.0; r * r],
+            rgb: vec![100; 3 * r * r],
+            depth: (0..r * r).map(|k| near(k) - 1.0).collect(),
+            back_depth: (0..r * r).map(|k| near(k) - 1.0 + 0.055).collect(),
+        };
+        let frame = Frame {
+            name: "f".into(),
+            camera: Camera {
+                intrinsics: Intrinsics::new(8.0, 8.0, 4.0, 4.0, 8, 8).unwrap(),
+                world_from_camera: nalgebra::Isometry3::identity(),
+            },
+            rgb: image::RgbImage::new(8, 8),
+            depth: DepthMap::new(8, 8, observed).unwrap(),
+            instances: None,
+        };
+        (window, visible, completion, frame)
+    }
+
+    /// Where another frame saw the object, fusion places no near-side point (that frame's point
+    /// is in the cloud) but puts the far side behind the observed one.
+    #[test]
+    fn no_near_side_point_where_another_frame_saw_the_object() {
+        let (window, visible, completion, frame) = setup();
+        let fuse = |seen: Option<&[f32]>| {
+            let opts = FuseOptions {
+                spread: None,
+                median_px: 0,
+                max_thickness_m: 0.0,
+                seen_elsewhere: seen,
+            };
+            fuse_completion(
+                &window,
+                &visible,
+                &completion,
+                &frame,
+                "t",
+                Provenance::Model,
+                &opts,
+            )
+            .0
+        };
+        let alone = fuse(None);
+        // Hidden pixel (row 3, column 6) seen by another frame 2 cm nearer than generated.
+        let p = 3 * 8 + 6;
+        let mut seen = vec![f32::INFINITY; 64];
+        seen[p] = completion.depth[p] - 0.02;
+        let with = fuse(Some(&seen));
+        // 32 visible pixels give far sides, 32 hidden ones near and far sides: one near side
+        // fewer with the other frame's observation.
+        assert_eq!(alone.len(), 32 + 64);
+        assert_eq!(with.len(), alone.len() - 1);
+        let z = |c: &deocc_geometry::PointCloud| -> Vec<f32> {
+            c.positions.iter().map(|q| q.z).collect()
+        };
+        let generated_near = 1.0 + 0.01 * 6.0;
+        let at = |zs: &[f32], d: f32| zs.iter().filter(|&&x| (x - d).abs() < 1e-4).count();
+        // Column 6 has a near point at 1.06 m in each of 8 rows; with the observation, 7.
+        assert_eq!(at(&z(&alone), generated_near), 8);
+        assert_eq!(at(&z(&with), generated_near), 7);
+        // The far side stays where it was (5.5 cm behind the generated near side).
+        assert_eq!(at(&z(&with), generated_near + 0.055), 8);
+    }
+}
