@@ -68,11 +68,11 @@ pub struct TrainArgs {
     /// Weight of the mean head's L1 loss against the flow loss.
     #[arg(long, default_value_t = 1.0)]
     mean_loss_weight: f32,
-    /// Train on conditions carrying what the other views observed of each object (pairs made
-    /// since they store it), as the pipeline gives them with several frames. Off: the shipped
-    /// weights were trained without.
-    #[arg(long)]
-    other_views_observed: bool,
+    /// The share of training conditions (0-1) that carry what the other views observed of
+    /// each object (pairs made since they store it), as the pipeline gives them with several
+    /// frames; the rest train the one-view case. 0: the shipped weights were trained without.
+    #[arg(long, default_value_t = 0.0)]
+    other_views_observed: f32,
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
@@ -117,6 +117,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     if !(a.learning_rate.is_finite() && a.learning_rate > 0.0 && a.learning_rate < 1.0) {
         bail!("--learning-rate {} is outside (0, 1)", a.learning_rate);
+    }
+    if !(0.0..=1.0).contains(&a.other_views_observed) {
+        bail!(
+            "--other-views-observed {} is outside [0, 1] (a share of the training pairs)",
+            a.other_views_observed
+        );
     }
     if !(a.mean_loss_weight.is_finite() && a.mean_loss_weight >= 0.0) {
         bail!(

@@ -27,6 +27,9 @@ pub struct PairData {
     /// Whether conditions carry the other views' reprojected observations (when the set has
     /// them), as the pipeline's do with several views.
     seen_elsewhere: AtomicBool,
+    /// The share of pairs (a fixed hash of the pair's index) whose conditions carry them when
+    /// on: 1 for evaluation, less in training so the model also learns the one-view case.
+    seen_elsewhere_share: f32,
 }
 
 impl PairData {
@@ -41,6 +44,7 @@ impl PairData {
             mask_prior: MaskPrior::HullInFront,
             base: ResidualBase::Visible,
             seen_elsewhere: AtomicBool::new(true),
+            seen_elsewhere_share: 1.0,
         }
     }
 
@@ -48,6 +52,14 @@ impl PairData {
     /// observations in their conditions.
     pub fn with_seen_elsewhere(self, on: bool) -> Self {
         self.set_seen_elsewhere(on);
+        self
+    }
+
+    /// The same pairs with the other views' observations in the conditions of about this share
+    /// of them (0 = none, 1 = all that have some).
+    pub fn with_seen_elsewhere_share(mut self, share: f32) -> Self {
+        self.seen_elsewhere_share = share.clamp(0.0, 1.0);
+        self.set_seen_elsewhere(share > 0.0);
         self
     }
 
@@ -116,7 +128,10 @@ impl PairData {
     pub fn condition(&self, i: usize) -> CropCondition {
         let n = self.set.pixels();
         let c = self.condition_without_elsewhere(i);
-        if self.seen_elsewhere() && self.set.has_elsewhere() {
+        // A fixed hash of the index picks the pairs that carry them (Knuth's multiplier).
+        let draw = ((i as u32).wrapping_mul(2_654_435_761) >> 8) as f32 / (1u32 << 24) as f32;
+        let picked = self.seen_elsewhere_share >= 1.0 || draw < self.seen_elsewhere_share;
+        if self.seen_elsewhere() && picked && self.set.has_elsewhere() {
             c.with_seen_elsewhere(SeenElsewhere {
                 rgb: self.set.elsewhere_rgb[i * n * 3..(i + 1) * n * 3].to_vec(),
                 depth: self.set.elsewhere_depth[i * n..(i + 1) * n].to_vec(),

@@ -87,11 +87,11 @@ pub struct TrainConfig {
     /// Inference, not training: with a mean head, colour and depth are the mean head's, read at
     /// the first step (one forward pass); off, they are the flow's sample after all steps.
     pub inference_reads_mean: bool,
-    /// Train on conditions that carry the other views' reprojected observations (where the
-    /// pairs have them). Off by default: the shipped weights were trained without them, and
-    /// the README's training chain reproduces those.
-    #[serde(default)]
-    pub other_views_observed: bool,
+    /// The share of training conditions that carry the other views' reprojected observations
+    /// (where the pairs have them); the others train the one-view case. 0 by default: the
+    /// shipped weights were trained without them, and the README's training chain reproduces
+    /// those.
+    pub other_views_observed: f32,
 }
 
 impl Default for TrainConfig {
@@ -117,7 +117,7 @@ impl Default for TrainConfig {
             mask_head_noise_fraction: 0.5,
             mean_loss_weight: 1.0,
             inference_reads_mean: true,
-            other_views_observed: false,
+            other_views_observed: 0.0,
         }
     }
 }
@@ -352,6 +352,12 @@ impl TrainConfig {
             return Err(format!(
                 "mask_loss_weight = {} must be finite and non-negative",
                 self.mask_loss_weight
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.other_views_observed) {
+            return Err(format!(
+                "other_views_observed = {} is outside [0, 1]",
+                self.other_views_observed
             ));
         }
         if !(self.mean_loss_weight.is_finite() && self.mean_loss_weight >= 0.0) {
@@ -1005,7 +1011,7 @@ pub fn train_run(
             .map_err(|e| TrainError::Config(e.to_string()))?
             .with_mask_prior(prior)
             .with_base(base)
-            .with_seen_elsewhere(observed);
+            .with_seen_elsewhere_share(observed);
         Ok(data)
     };
     let every = opts.reshuffle_every;

@@ -253,3 +253,54 @@ fn broken_weights_are_refused() {
         "{e}"
     );
 }
+
+/// The other views' observations reach the conditions of the share of pairs asked for: all of
+/// them by default, none when switched off, about half at 0.5 (the training mix).
+#[test]
+fn the_other_views_observations_reach_the_share_of_conditions_asked_for() {
+    let (n, r) = (200usize, 4usize);
+    let px = r * r;
+    let mut set = deocc_io::pairs::PairSet {
+        resolution: r as u32,
+        crop_rgb: vec![50; n * px * 3],
+        visible_mask: (0..n * px).map(|i| (i % px < 4) as u8).collect(),
+        visible_depth: vec![0.0; n * px],
+        scene_depth: vec![0.0; n * px],
+        whole_rgb: vec![255; n * px * 3],
+        amodal_mask: vec![1; n * px],
+        whole_depth: vec![0.0; n * px],
+        whole_back_depth: vec![0.1; n * px],
+        group: (0..n as u32).collect(),
+        category: vec![0; n],
+        held_out: vec![0; n],
+        occlusion: vec![0.5; n],
+        crop_width_m: vec![0.3; n],
+        elsewhere_rgb: vec![9; n * px * 3],
+        // Each pair: pixel 10 (hidden) seen elsewhere.
+        elsewhere_depth: (0..n * px)
+            .map(|i| if i % px == 10 { 0.05 } else { f32::INFINITY })
+            .collect(),
+    };
+    let count = |data: &PairData| {
+        (0..n)
+            .filter(|&i| data.condition(i).seen_elsewhere.is_some())
+            .count()
+    };
+    assert_eq!(count(&PairData::new(set.clone())), n);
+    assert_eq!(
+        count(&PairData::new(set.clone()).with_seen_elsewhere(false)),
+        0
+    );
+    let half = count(&PairData::new(set.clone()).with_seen_elsewhere_share(0.5));
+    assert!((70..=130).contains(&half), "{half} of {n}");
+    assert_eq!(
+        count(&PairData::new(set.clone()).with_seen_elsewhere_share(0.0)),
+        0
+    );
+    // A condition with them takes their colour at that pixel; one without, the visible colour.
+    let data = PairData::new(set.clone());
+    assert_eq!(data.condition(0).observed().rgb[30..33], [9, 9, 9]);
+    set.elsewhere_depth.clear();
+    set.elsewhere_rgb.clear();
+    assert_eq!(count(&PairData::new(set)), 0);
+}
