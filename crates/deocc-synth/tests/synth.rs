@@ -287,23 +287,14 @@ fn pairs_are_consistent_and_round_trip() {
     let (mut interior_px, mut colour_ok) = (0, 0);
     for k in 0..set.len() {
         let amo = &set.amodal_mask[k * px..(k + 1) * px];
-        let near_object = |i: usize| {
+        // How many of pixel i's 3x3 neighbourhood are object (outside the crop: not).
+        let object_around = |i: usize| {
             let (u, v) = ((i as i64) % r, (i as i64) / r);
-            (-1..=1).any(|dv| {
-                (-1..=1).any(|du| {
-                    let (x, y) = (u + du, v + dv);
-                    x >= 0 && y >= 0 && x < r && y < r && amo[(y * r + x) as usize] > 0
-                })
-            })
-        };
-        let interior = |i: usize| {
-            let (u, v) = ((i as i64) % r, (i as i64) / r);
-            (-1..=1).all(|dv| {
-                (-1..=1).all(|du| {
-                    let (x, y) = (u + du, v + dv);
-                    x >= 0 && y >= 0 && x < r && y < r && amo[(y * r + x) as usize] > 0
-                })
-            })
+            (-1..=1)
+                .flat_map(|dv| (-1..=1).map(move |du| (u + du, v + dv)))
+                .filter(|&(x, y)| x >= 0 && y >= 0 && x < r && y < r)
+                .filter(|&(x, y)| amo[(y * r + x) as usize] > 0)
+                .count()
         };
         for (i, &a) in amo.iter().enumerate() {
             let j = k * px + i;
@@ -312,7 +303,7 @@ fn pairs_are_consistent_and_round_trip() {
                 continue;
             }
             if a == 0 {
-                far_off += (!near_object(i)) as usize;
+                far_off += (object_around(i) == 0) as usize;
                 continue;
             }
             on_object += 1;
@@ -323,7 +314,7 @@ fn pairs_are_consistent_and_round_trip() {
                 .unwrap();
             // Inside the silhouette (not on its edge, where the nearest point may lie on a side
             // face the pixel centre does not see).
-            if interior(i) {
+            if object_around(i) == 9 {
                 interior_px += 1;
                 colour_ok += (diff <= 8) as usize;
             }
