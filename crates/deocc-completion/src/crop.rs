@@ -44,9 +44,11 @@ pub struct SeenElsewhere {
     pub depth: Vec<f32>,
 }
 
-/// A reprojected point is kept only where the scene this view measured is in front of it or
-/// at most this far behind it (relative depth): farther behind, this view would have seen it.
-pub const SEEN_ELSEWHERE_TOLERANCE: f32 = 0.05;
+/// A reprojected point is kept only where this view measured nothing or measured something at
+/// least this far in front of it (relative depth): something that hides it. Where this view
+/// sees a surface at the point's depth (or behind it) and does not call it the object, the two
+/// views disagree (a segmentation's or a match's error) and the point is dropped.
+pub const SEEN_ELSEWHERE_HIDDEN_MARGIN: f32 = 0.02;
 
 /// What is known of the object's near side in a crop: its visible pixels and, where other views
 /// saw it, their reprojected points.
@@ -87,7 +89,8 @@ impl CropCondition {
 
     /// The crop with other views' observations of the object (relative depth infinite where none),
     /// kept on pixels this view does not see the object and where its own measurement does not
-    /// contradict them ([`SEEN_ELSEWHERE_TOLERANCE`]); the prior takes in the kept points.
+    /// contradict them (something measured in front of them, [`SEEN_ELSEWHERE_HIDDEN_MARGIN`]);
+    /// the prior takes in the kept points.
     /// Empty observations leave the crop as it was.
     pub fn with_seen_elsewhere(mut self, mut seen: SeenElsewhere) -> Self {
         let n = self.pixels();
@@ -98,7 +101,7 @@ impl CropCondition {
             let d = seen.depth[k];
             let scene = self.scene_depth[k];
             let measured = scene != 0.0;
-            if self.visible[k] || (measured && scene > d + SEEN_ELSEWHERE_TOLERANCE) {
+            if self.visible[k] || (measured && scene > d - SEEN_ELSEWHERE_HIDDEN_MARGIN) {
                 seen.depth[k] = f32::INFINITY;
             }
         }

@@ -366,8 +366,8 @@ fn ellipse_or_box_prior_fills_the_hidden_corner_of_a_rectangle() {
 }
 
 /// Another view saw the hidden right part of the disk: the rules keep those points' colour and
-/// depth, put them in the mask and fit the prior to them; a point the crop's own measurement
-/// contradicts (the scene seen behind it) and points on visible pixels change nothing.
+/// depth and put them in the mask; a point the crop's own measurement contradicts (the scene
+/// seen behind it or at its depth) and points on visible pixels change nothing.
 #[test]
 fn points_other_views_saw_join_the_rules_completion_unless_the_crop_contradicts_them() {
     let crop = occluded_disk();
@@ -423,6 +423,17 @@ fn points_other_views_saw_join_the_rules_completion_unless_the_crop_contradicts_
         &[200, 40, 10]
     );
     assert_eq!(both.depth[on_visible], 0.0);
+    // Where this view sees another surface at the point's own depth, the views disagree about
+    // what is there: the point is dropped.
+    let mut same_depth = crop.clone();
+    same_depth.scene_depth[contradicted] = -0.1;
+    let mut one = vec![f32::INFINITY; r * r];
+    one[contradicted] = -0.1;
+    let dropped = same_depth.with_seen_elsewhere(deocc_completion::SeenElsewhere {
+        rgb: vec![0; 3 * r * r],
+        depth: one,
+    });
+    assert!(dropped.seen_elsewhere.is_none());
     // Mirroring carries the observations along.
     let m = with.mirrored();
     let q = (p / r) * r + (r - 1 - p % r);
