@@ -16,9 +16,10 @@ pub struct PipelineOptions {
     pub rho: f32,
     /// Give every completer what the other frames observed of the object, reprojected into its
     /// crop (`crate::crops::seen_elsewhere`): the rules and GL-DoT keep those points in the
-    /// mask, with their colour and depth. On by default: on the test pairs it takes the
-    /// hidden colour error from 14.8 to 6.3, the near side from 0.076 to 0.030 crop widths and
-    /// adds 0.028 mIoU; in 3-D the fused clouds hardly change (docs/decisions.md).
+    /// mask, with their colour and depth. On by default: on the test pairs where some are
+    /// kept it takes the hidden colour error from 14.8 to 6.3, the near side from 0.076 to
+    /// 0.029 crop widths and adds 0.038 mIoU; in 3-D the fused clouds hardly change
+    /// (docs/decisions.md).
     pub use_other_views: bool,
     /// A further view of an instance is completed only if it looks at it from at least this many
     /// degrees away from every view already chosen.
