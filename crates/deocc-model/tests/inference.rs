@@ -106,7 +106,8 @@ fn pair_data_carries_the_prior_of_the_model_in_channel_6() {
         let c: Vec<f32> = cond.flatten_all().unwrap().to_vec1().unwrap();
         c.chunks_exact(COND_CHANNELS).map(|p| p[6] > 0.0).collect()
     };
-    let data = tiny_pairs();
+    // From the pair's own view (its other views' points join the prior, below).
+    let data = tiny_pairs().with_seen_elsewhere(false);
     assert_eq!(channel6(&data), data.hull_prior(0));
     let data = data.with_mask_prior(MaskPrior::EllipseInFront);
     assert_eq!(channel6(&data), data.ellipse_prior(0));
@@ -121,6 +122,19 @@ fn pair_data_carries_the_prior_of_the_model_in_channel_6() {
     );
     assert_eq!(channel6(&data), expected);
     assert_eq!(data.condition_prior(0), expected);
+    // With the other views' observations the prior takes in the points they keep.
+    data.set_seen_elsewhere(true);
+    let cond = data.condition(0);
+    let with = channel6(&data);
+    assert_eq!(with, cond.prior);
+    assert!(with.iter().zip(&expected).all(|(&w, &e)| w || !e));
+    if let Some(seen) = &cond.seen_elsewhere {
+        assert!(seen
+            .depth
+            .iter()
+            .zip(&with)
+            .all(|(d, &w)| w || !d.is_finite()));
+    }
 }
 
 /// With a mask head the constraint is the candidate region (not visible, the scene observed in
