@@ -107,7 +107,9 @@ pub fn tiny_pairs() -> PairData {
         "the scene should give a few pairs, got {}",
         set.len()
     );
-    PairData::new(set)
+    // As training reads them by default: from each pair's own view (the set carries the other
+    // views' observations; a test switches them on with `set_seen_elsewhere`).
+    PairData::new(set).with_seen_elsewhere(false)
 }
 
 /// A tiny model trained one step on `data`, loaded back as a completer (the run directory is
