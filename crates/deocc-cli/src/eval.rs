@@ -152,9 +152,18 @@ pub struct AmodalArgs {
     /// for models with a mask head, the mask channel in [-1, 1] otherwise).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     mask_thresholds: Vec<f32>,
+    /// Also report the mIoU with the crops that carry other views' points at these thresholds
+    /// (the others at the model's), comma-separated: chooses the shipped
+    /// `mask_threshold_seen_elsewhere` on val.
+    #[arg(long, value_delimiter = ',')]
+    mask_thresholds_seen_elsewhere: Vec<f32>,
     /// Override the model's mask threshold (from its train.json) for every figure.
     #[arg(long, allow_hyphen_values = true)]
     mask_threshold: Option<f32>,
+    /// Override the threshold of crops carrying other views' points (from its train.json;
+    /// a negative value: none, the plain threshold everywhere).
+    #[arg(long, allow_hyphen_values = true)]
+    mask_threshold_seen_elsewhere: Option<f32>,
     /// Override the samples averaged per completion (from its train.json; 1 if absent).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
     samples: Option<u32>,
@@ -233,6 +242,9 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     if let Some(th) = a.mask_threshold {
         completer.mask_threshold = th;
     }
+    if let Some(th) = a.mask_threshold_seen_elsewhere {
+        completer.mask_threshold_seen_elsewhere = (th >= 0.0).then_some(th);
+    }
     if let Some(n) = a.samples {
         completer.samples = n as usize;
     }
@@ -275,6 +287,7 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         sweep_steps: a.sweep_steps.clone(),
         sweep_pairs: a.sweep_pairs,
         mask_thresholds: a.mask_thresholds.clone(),
+        mask_thresholds_seen_elsewhere: a.mask_thresholds_seen_elsewhere.clone(),
         bootstrap_resamples: a.bootstrap,
         skip_cross_view: a.no_cross_view,
         depth_median_px: a

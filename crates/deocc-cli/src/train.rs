@@ -208,6 +208,11 @@ pub struct ExportArgs {
     /// amodal --split val --mask-thresholds ...`). Default: the run's.
     #[arg(long, allow_hyphen_values = true)]
     mask_threshold: Option<f32>,
+    /// The threshold to ship for crops that carry other views' reprojected observations (`none`:
+    /// the plain threshold everywhere); choose it on the validation pairs (`deocc eval amodal
+    /// --split val --mask-thresholds-seen-elsewhere ...`). Default: the run's.
+    #[arg(long, value_name = "THRESHOLD|none")]
+    mask_threshold_seen_elsewhere: Option<String>,
     /// Ship the rule that keeps every pixel of the geometric prior in the amodal mask (the model
     /// only adds pixels); choose it on the validation pairs (`deocc eval amodal --split val
     /// --keep-prior true|false`).
@@ -228,10 +233,25 @@ pub fn export(a: ExportArgs) -> Result<()> {
         &a.out,
         &deocc_model::export::ExportOptions {
             mask_threshold: a.mask_threshold,
+            mask_threshold_seen_elsewhere: a
+                .mask_threshold_seen_elsewhere
+                .as_deref()
+                .map(parse_optional_threshold)
+                .transpose()?,
             keep_prior: a.keep_prior,
             samples: a.samples,
         },
     )?;
     println!("exported {} -> {}", a.run.display(), out.display());
     Ok(())
+}
+
+/// `none`, or a threshold.
+fn parse_optional_threshold(s: &str) -> Result<Option<f32>> {
+    if s == "none" {
+        return Ok(None);
+    }
+    s.parse::<f32>().map(Some).map_err(|e| {
+        anyhow::anyhow!("--mask-threshold-seen-elsewhere {s:?} is neither a number nor `none`: {e}")
+    })
 }

@@ -37,8 +37,12 @@ pub struct AmodalEvalOptions {
     pub rho: f32,
     pub batch: usize,
     pub seed: u64,
-    /// Mask thresholds to report the model's main-steps mIoU at (choosing the shipped one on val).
+    /// Mask thresholds to report the model's main-steps mIoU at (choosing the shipped one on val;
+    /// crops carrying other views' points keep the model's seen-elsewhere threshold if it has one).
     pub mask_thresholds: Vec<f32>,
+    /// Thresholds of the crops carrying other views' points to report the mIoU at, the other
+    /// crops at the model's threshold (choosing `mask_threshold_seen_elsewhere` on val).
+    pub mask_thresholds_seen_elsewhere: Vec<f32>,
     pub bootstrap_resamples: usize,
     /// Skip the cross-view run (half the time).
     pub skip_cross_view: bool,
@@ -62,6 +66,7 @@ impl Default for AmodalEvalOptions {
             batch: 16,
             seed: 0,
             mask_thresholds: Vec::new(),
+            mask_thresholds_seen_elsewhere: Vec::new(),
             bootstrap_resamples: 1000,
             skip_cross_view: false,
             depth_median_px: 0,
@@ -190,6 +195,8 @@ pub struct ModelFacts {
     pub base: deocc_model::config::ResidualBase,
     pub mask_prior: deocc_completion::MaskPrior,
     pub mask_threshold: f32,
+    /// The threshold of crops carrying other views' points (`None`: `mask_threshold`).
+    pub mask_threshold_seen_elsewhere: Option<f32>,
     pub keep_prior: bool,
     pub samples_per_completion: usize,
     /// Colour and depth from the mean head (read at the first step) rather than the flow's sample.
@@ -239,6 +246,9 @@ pub struct AmodalReport {
     pub other_views_observed: Option<OtherViewsObserved>,
     pub steps: StepSweep,
     pub miou_by_mask_threshold: BTreeMap<String, f64>,
+    /// mIoU with the crops carrying other views' points at each threshold of
+    /// `mask_thresholds_seen_elsewhere`, the others at the model's.
+    pub miou_by_seen_elsewhere_threshold: BTreeMap<String, f64>,
     pub speed: SpeedFigures,
 }
 
@@ -384,9 +394,10 @@ fn complete_model(
         let mut done = c
             .complete(&cond, &others, rho, steps, opts.seed)
             .map_err(|e| EvalError::Model(e.to_string()))?;
-        // As the pipeline's completer does: other views' observations win.
+        // As the pipeline's completer does: the crop's threshold, and other views'
+        // observations win.
         for (comp, &i) in done.iter_mut().zip(chunk) {
-            comp.keep_seen_elsewhere(&data.condition(i));
+            c.finish(comp, &data.condition(i));
         }
         out.extend(done);
         tick(chunk.len());
@@ -703,27 +714,41 @@ pub fn evaluate_amodal(
         main_vs_most,
     };
 
+    // mIoU with one threshold for the crops without other views' points and one for those with.
+    let seen: Vec<bool> = conds
+        .iter()
+        .map(deocc_model::infer::has_seen_elsewhere)
+        .collect();
+    let miou_at = |plain: f32, with_points: f32| {
+        mean((0..n).map(|k| {
+            let cond = &conds[k];
+            let th = if seen[k] { with_points } else { plain };
+            let pred: Vec<bool> = (0..r * r)
+                .map(|p| {
+                    c.in_mask(
+                        model_out[k].mask_score[p],
+                        cond.visible[p],
+                        cond.prior[p],
+                        th,
+                    )
+                })
+                .collect();
+            let truth: Vec<bool> = data.amodal_mask(idx[k]).iter().map(|&v| v > 0).collect();
+            iou(&pred, &truth)
+        }))
+    };
     let miou_by_mask_threshold = opts
         .mask_thresholds
         .iter()
         .map(|&th| {
-            let m = mean((0..n).map(|k| {
-                let cond = &conds[k];
-                let pred: Vec<bool> = (0..r * r)
-                    .map(|p| {
-                        c.in_mask(
-                            model_out[k].mask_score[p],
-                            cond.visible[p],
-                            cond.prior[p],
-                            th,
-                        )
-                    })
-                    .collect();
-                let truth: Vec<bool> = data.amodal_mask(idx[k]).iter().map(|&v| v > 0).collect();
-                iou(&pred, &truth)
-            }));
+            let m = miou_at(th, c.mask_threshold_seen_elsewhere.unwrap_or(th));
             (format!("{th:.3}"), m)
         })
+        .collect();
+    let miou_by_seen_elsewhere_threshold = opts
+        .mask_thresholds_seen_elsewhere
+        .iter()
+        .map(|&th| (format!("{th:.3}"), miou_at(c.mask_threshold, th)))
         .collect();
 
     // Speed at the main step count: one crop, then a batch of 8.
@@ -764,6 +789,7 @@ pub fn evaluate_amodal(
             base: c.model.config.base,
             mask_prior: c.model.config.mask_prior,
             mask_threshold: c.mask_threshold,
+            mask_threshold_seen_elsewhere: c.mask_threshold_seen_elsewhere,
             keep_prior: c.keep_prior,
             samples_per_completion: c.samples,
             colour_depth_from_mean_head: c.model.config.mean_head && c.reads_mean,
@@ -833,6 +859,7 @@ pub fn evaluate_amodal(
         other_views_observed,
         steps,
         miou_by_mask_threshold,
+        miou_by_seen_elsewhere_threshold,
         speed,
     })
 }

@@ -14,6 +14,9 @@ pub struct ExportOptions {
     /// Mask threshold: in [0, 1] (a probability) for models with a mask head, in [-1, 1] (the
     /// mask channel) otherwise.
     pub mask_threshold: Option<f32>,
+    /// `Some(None)` ships no seen-elsewhere threshold, `Some(Some(th))` ships `th`, `None` keeps
+    /// the run's.
+    pub mask_threshold_seen_elsewhere: Option<Option<f32>>,
     pub keep_prior: Option<bool>,
     /// Samples averaged per completion (odd ones mirrored), in 1..=16.
     pub samples: Option<usize>,
@@ -68,6 +71,9 @@ pub fn export_run(run: &Path, out: &Path, opts: &ExportOptions) -> Result<PathBu
             )));
         }
         config.mask_threshold = th;
+    }
+    if let Some(th) = opts.mask_threshold_seen_elsewhere {
+        config.mask_threshold_seen_elsewhere = th;
     }
     if let Some(keep) = opts.keep_prior {
         config.mask_keeps_prior = keep;

@@ -31,6 +31,10 @@ pub struct GlDotCompleter {
     pub timestep_shift: f32,
     /// A pixel is in the amodal mask when the mask channel (in [-1, 1]) is above this.
     pub mask_threshold: f32,
+    /// The threshold for crops that carry the other views' observations (at least one point);
+    /// `None` = `mask_threshold` ([`crate::train::TrainConfig::mask_threshold_seen_elsewhere`]).
+    /// Applied by [`GlDotCompleter::finish`].
+    pub mask_threshold_seen_elsewhere: Option<f32>,
     /// Free-space constraint: a hidden pixel can belong to the object only where the observed
     /// scene is in front of the object's predicted near side (plus [`FREE_SPACE_MARGIN`]); where
     /// the scene is seen behind it, the object would have been seen. Uses the condition's
@@ -116,6 +120,7 @@ impl GlDotCompleter {
             model,
             timestep_shift,
             mask_threshold: 0.0,
+            mask_threshold_seen_elsewhere: None,
             free_space: true,
             samples: 1,
             keep_prior: false,
@@ -128,6 +133,7 @@ impl GlDotCompleter {
     /// Applies the inference fields of a training config (mask rule, samples).
     fn with_inference_config(mut self, cfg: &TrainConfig) -> Self {
         self.mask_threshold = cfg.mask_threshold;
+        self.mask_threshold_seen_elsewhere = cfg.mask_threshold_seen_elsewhere;
         self.samples = cfg.inference_samples.max(1);
         self.keep_prior = cfg.mask_keeps_prior;
         self.reads_mean = cfg.inference_reads_mean;
@@ -253,6 +259,35 @@ impl GlDotCompleter {
 
     pub fn resolution(&self) -> usize {
         self.model.config.resolution
+    }
+
+    /// The mask threshold for one crop: [`GlDotCompleter::mask_threshold_seen_elsewhere`] where
+    /// the condition carries at least one point another view observed, else `mask_threshold`.
+    pub fn threshold_for(&self, c: &deocc_completion::CropCondition) -> f32 {
+        match self.mask_threshold_seen_elsewhere {
+            Some(th) if has_seen_elsewhere(c) => th,
+            _ => self.mask_threshold,
+        }
+    }
+
+    /// Finishes a completion of crop `c` as the pipeline's completer does: the mask at the
+    /// crop's threshold ([`GlDotCompleter::threshold_for`]; [`GlDotCompleter::complete`] applies
+    /// `mask_threshold` to every crop), then the other views' observations win
+    /// ([`Completion::keep_seen_elsewhere`]).
+    pub fn finish(&self, comp: &mut Completion, c: &deocc_completion::CropCondition) {
+        let th = self.threshold_for(c);
+        if th != self.mask_threshold {
+            // The prior the condition tensor carried (channel 6), read only when it is kept.
+            let prior = if self.keep_prior {
+                c.prior_of(self.model.config.mask_prior)
+            } else {
+                vec![false; c.pixels()]
+            };
+            for (k, a) in comp.amodal.iter_mut().enumerate() {
+                *a = self.in_mask(comp.mask_score[k], c.visible[k], prior[k], th);
+            }
+        }
+        comp.keep_seen_elsewhere(c);
     }
 
     /// Completes a batch. `cond` (B, R, R, 7) as built by [`crate::encode::condition_tensor`];
@@ -389,6 +424,13 @@ impl GlDotCompleter {
     }
 }
 
+/// Whether a crop carries at least one point another view observed.
+pub fn has_seen_elsewhere(c: &deocc_completion::CropCondition) -> bool {
+    c.seen_elsewhere
+        .as_ref()
+        .is_some_and(|s| s.depth.iter().any(|d| d.is_finite()))
+}
+
 fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
@@ -471,7 +513,7 @@ impl deocc_completion::Completer for GlDotCompleter {
             .into_iter()
             .zip(batch)
             .map(|(mut c, req)| {
-                c.keep_seen_elsewhere(req.condition);
+                self.finish(&mut c, req.condition);
                 c.into_crop_completion(&req.condition.visible, self.model.config.mask_head)
             })
             .collect())

@@ -71,6 +71,12 @@ pub struct TrainConfig {
     /// middle). Chosen on validation pairs after training (`deocc eval amodal --split val
     /// --mask-thresholds ...`) and shipped with the weights in train.json.
     pub mask_threshold: f32,
+    /// Inference, not training: the threshold for crops that carry the other views' reprojected
+    /// observations (at least one point kept, [`deocc_completion::CropCondition::seen_elsewhere`]);
+    /// `None` = `mask_threshold`. Those points anchor the outline, and the pixels the model adds
+    /// beside them are wrong more often than in a one-view crop: chosen on validation pairs like
+    /// `mask_threshold` (`deocc eval amodal --split val --mask-thresholds-seen-elsewhere ...`).
+    pub mask_threshold_seen_elsewhere: Option<f32>,
     /// Inference, not training: samples averaged per completion ([`crate::infer::GlDotCompleter`]'s
     /// `samples`), chosen on validation pairs like the threshold and shipped with it.
     pub inference_samples: usize,
@@ -111,6 +117,7 @@ impl Default for TrainConfig {
             checkpoint_every: 200,
             channel_loss_weights: Vec::new(),
             mask_threshold: 0.0,
+            mask_threshold_seen_elsewhere: None,
             inference_samples: 1,
             mask_keeps_prior: false,
             mask_loss_weight: 1.0,
@@ -371,13 +378,20 @@ impl TrainConfig {
         } else {
             -1e3..=1e3
         };
-        if !range.contains(&self.mask_threshold) {
-            return Err(format!(
-                "mask_threshold = {} is outside [{}, {}]",
-                self.mask_threshold,
-                range.start(),
-                range.end()
-            ));
+        for (name, th) in [
+            ("mask_threshold", Some(self.mask_threshold)),
+            (
+                "mask_threshold_seen_elsewhere",
+                self.mask_threshold_seen_elsewhere,
+            ),
+        ] {
+            if let Some(th) = th.filter(|th| !range.contains(th)) {
+                return Err(format!(
+                    "{name} = {th} is outside [{}, {}]",
+                    range.start(),
+                    range.end()
+                ));
+            }
         }
         if !(1..=16).contains(&self.inference_samples) {
             return Err(format!(

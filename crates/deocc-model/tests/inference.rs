@@ -176,3 +176,50 @@ fn a_mask_head_adds_pixels_only_where_a_hidden_part_can_be() {
     }
     assert!(added > 0);
 }
+
+#[test]
+fn crops_carrying_other_views_points_take_their_own_threshold() {
+    use deocc_completion::SeenElsewhere;
+    use deocc_model::encode::condition_tensor;
+    let data = tiny_pairs();
+    let (_dir, mut completer) = completer_after_one_step(&data);
+    // Every score passes the plain threshold, none the seen-elsewhere one.
+    completer.mask_threshold = f32::MIN;
+    completer.mask_threshold_seen_elsewhere = Some(f32::MAX);
+    let plain = data.condition(0);
+    let n = plain.pixels();
+    let hidden = (0..n)
+        .find(|&k| !plain.visible[k])
+        .expect("a pixel the view does not see");
+    let mut depth = vec![f32::INFINITY; n];
+    depth[hidden] = 0.0;
+    let mut seen = plain.clone();
+    seen.seen_elsewhere = Some(SeenElsewhere {
+        rgb: vec![7; 3 * n],
+        depth,
+    });
+    for (cond, carries) in [(&plain, false), (&seen, true)] {
+        assert_eq!(deocc_model::infer::has_seen_elsewhere(cond), carries);
+        let t = condition_tensor(&[cond], completer.model.config.mask_prior, &Device::Cpu).unwrap();
+        let mut done = completer.complete(&t, &[], 0.0, 2, 9).unwrap().remove(0);
+        let before = done.amodal.clone();
+        completer.finish(&mut done, cond);
+        if carries {
+            // The visible pixels and the other view's point; nothing the model added.
+            for k in 0..n {
+                assert_eq!(done.amodal[k], cond.visible[k] || k == hidden, "pixel {k}");
+            }
+            assert_eq!(&done.rgb[3 * hidden..3 * hidden + 3], &[7, 7, 7]);
+            assert_eq!(done.depth_rel[hidden], 0.0);
+        } else {
+            assert_eq!(
+                done.amodal, before,
+                "a one-view crop keeps the plain threshold"
+            );
+            assert!(
+                done.amodal.iter().filter(|&&a| a).count() > cond.visible_px(),
+                "the lowest threshold adds pixels to the visible mask"
+            );
+        }
+    }
+}
