@@ -364,8 +364,15 @@ pub fn run_observed(
         );
     }
     let mut points_carved = 0;
+    if let (true, Some(found)) = (opts.carve_outside_bounding_planes_m > 0.0, &found) {
+        let planes = planes::bounding_planes(scene, found);
+        (generated, points_carved) =
+            planes::keep_inside(&generated, &planes, opts.carve_outside_bounding_planes_m);
+    }
     if opts.carve_generated {
-        (generated, points_carved) = carve::keep_hidden(&generated, scene);
+        let carved;
+        (generated, carved) = carve::keep_hidden(&generated, scene);
+        points_carved += carved;
     }
     let mut completed = fuse_generated(&observed, &generated, opts.fusion_voxel_m)?;
     timings.fuse_s = t.elapsed().as_secs_f64();

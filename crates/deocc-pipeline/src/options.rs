@@ -71,6 +71,9 @@ pub struct PipelineOptions {
     pub plane_min_rectangularity: f32,
     /// Keep a generated point only if every view agrees it is hidden ([`crate::carve`]).
     pub carve_generated: bool,
+    /// Drop generated points more than this far (metres; 0 = off) behind one of the scene's
+    /// bounding planes, under the floor or behind a wall ([`crate::planes::keep_inside`]).
+    pub carve_outside_bounding_planes_m: f32,
     /// Every camera must lie within this distance of the cameras' median position (metres): one
     /// scene seen from one place. A pose far from the others is a mistake that would spread the
     /// reconstruction over kilometres.
@@ -155,6 +158,7 @@ impl Default for PipelineOptions {
             complete_planes: true,
             plane_min_rectangularity: 0.8,
             carve_generated: true,
+            carve_outside_bounding_planes_m: 0.0,
             max_scene_radius_m: 50.0,
             gate_min_mean_confidence: GATE_MIN_MEAN_CONFIDENCE,
             gate_max_seen_through_fraction: GATE_MAX_SEEN_THROUGH_FRACTION,
@@ -278,6 +282,10 @@ impl PipelineOptions {
             ("gate_max_depth_spread_m", self.gate_max_depth_spread_m),
             ("generated_max_thickness_m", self.generated_max_thickness_m),
             ("rules_max_thickness_m", self.rules_max_thickness_m),
+            (
+                "carve_outside_bounding_planes_m",
+                self.carve_outside_bounding_planes_m,
+            ),
             (
                 "generated_depth_median_max_crop_m",
                 self.generated_depth_median_max_crop_m,

@@ -134,35 +134,66 @@ pub fn plane_pieces(
     opts: &PlaneOptions,
     min_fraction: f32,
 ) -> Vec<u16> {
-    let per = &found.points;
-    let centres: Vec<Point3<f32>> = scene.frames.iter().map(|f| f.camera.center()).collect();
-    let all: Vec<Point3<f32>> = per.values().flat_map(|(p, _)| p.iter().copied()).collect();
-    let planes: Vec<&Plane> = found
-        .planes
-        .iter()
-        .filter(|pl| {
-            facing_cameras(pl.normal, pl.offset, &centres).is_some_and(|(n, o)| {
-                let behind = all.iter().filter(|p| n.dot(&p.coords) - o < -0.03).count();
-                behind as f32 <= 0.005 * all.len() as f32
-            })
-        })
-        .collect();
+    let planes = bounding_planes(scene, found);
     if planes.is_empty() {
         return Vec::new();
     }
-    per.iter()
+    found
+        .points
+        .iter()
         .filter(|(_, (points, _))| {
             !points.is_empty()
-                && planes.iter().any(|pl| {
+                && planes.iter().any(|&(n, o)| {
                     let on = points
                         .iter()
-                        .filter(|p| (pl.normal.dot(&p.coords) - pl.offset).abs() <= opts.inlier_m)
+                        .filter(|p| (n.dot(&p.coords) - o).abs() <= opts.inlier_m)
                         .count();
                     on as f32 >= min_fraction * points.len() as f32
                 })
         })
         .map(|(id, _)| *id)
         .collect()
+}
+
+/// The scene's bounding planes (`n . p = o`, the cameras on the positive side): the planes of
+/// large planar instances with every camera on one side and (almost) nothing observed more than
+/// 3 cm behind them (the floor and the walls).
+pub fn bounding_planes(scene: &SceneInput, found: &ScenePlanes) -> Vec<(Vector3<f32>, f32)> {
+    let centres: Vec<Point3<f32>> = scene.frames.iter().map(|f| f.camera.center()).collect();
+    let all: Vec<Point3<f32>> = found
+        .points
+        .values()
+        .flat_map(|(p, _)| p.iter().copied())
+        .collect();
+    found
+        .planes
+        .iter()
+        .filter_map(|pl| facing_cameras(pl.normal, pl.offset, &centres))
+        .filter(|&(n, o)| {
+            let behind = all.iter().filter(|p| n.dot(&p.coords) - o < -0.03).count();
+            behind as f32 <= 0.005 * all.len() as f32
+        })
+        .collect()
+}
+
+/// Drops the points more than `margin_m` behind a bounding plane ([`bounding_planes`]): under
+/// the floor or behind a wall, where the views show nothing can be. Returns the kept cloud and
+/// how many points were dropped.
+pub fn keep_inside(
+    cloud: &PointCloud,
+    planes: &[(Vector3<f32>, f32)],
+    margin_m: f32,
+) -> (PointCloud, usize) {
+    let keep: Vec<usize> = (0..cloud.len())
+        .filter(|&i| {
+            let p = cloud.positions[i];
+            planes
+                .iter()
+                .all(|&(n, o)| n.dot(&p.coords) - o >= -margin_m)
+        })
+        .collect();
+    let dropped = cloud.len() - keep.len();
+    (cloud.select(&keep), dropped)
 }
 
 /// The scene's large planar instances' planes, and every instance's sampled points: found once
@@ -653,6 +684,34 @@ pub fn complete_found_planes(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn keep_inside_drops_only_points_beyond_the_margin_behind_a_plane() {
+        // The floor z = 0 and a wall x = 2, cameras on their positive sides.
+        let planes = [
+            (Vector3::new(0.0, 0.0, 1.0), 0.0),
+            (Vector3::new(-1.0, 0.0, 0.0), -2.0),
+        ];
+        let cloud = PointCloud::from_positions(vec![
+            Point3::new(0.5, 0.0, 0.3),   // in the room
+            Point3::new(0.5, 0.0, -0.01), // within the margin under the floor
+            Point3::new(0.5, 0.0, -0.05), // under the floor
+            Point3::new(2.05, 0.0, 0.3),  // behind the wall
+            Point3::new(1.99, 0.0, 0.0),  // at the corner, inside
+        ]);
+        let (kept, dropped) = keep_inside(&cloud, &planes, 0.02);
+        assert_eq!(dropped, 2);
+        assert_eq!(
+            kept.positions,
+            vec![
+                Point3::new(0.5, 0.0, 0.3),
+                Point3::new(0.5, 0.0, -0.01),
+                Point3::new(1.99, 0.0, 0.0)
+            ]
+        );
+        let (all, none) = keep_inside(&cloud, &[], 0.02);
+        assert_eq!((all.len(), none), (5, 0));
+    }
 
     /// `na x nb` points `origin + i a + j b`.
     fn lattice(

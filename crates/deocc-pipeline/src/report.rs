@@ -92,7 +92,8 @@ pub struct RunReport {
     /// Of those, filled in on planes (floor, walls).
     pub points_plane_fill: usize,
     /// Generated object points removed because a view saw them or saw through them
-    /// ([`crate::carve`]).
+    /// ([`crate::carve`]), or, with `carve_outside_bounding_planes_m`, because they lay under
+    /// the floor or behind a wall ([`crate::planes::keep_inside`]).
     pub points_carved: usize,
     /// Crops every completer of the chain declined.
     pub crops_declined: usize,
