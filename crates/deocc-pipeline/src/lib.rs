@@ -16,7 +16,7 @@
 //! | support: hidden bottoms down to the surface below | [`support`] | [`support::extend_to_support`] |
 //! | revolve: upright solids of revolution completed on their axis | [`revolve`] | [`revolve::revolve_instances`] |
 //! | cuboid: upright boxes seen at an angle completed as boxes | [`cuboid`] | [`cuboid::cuboid_instances`] |
-//! | carving | [`carve`] | [`carve::keep_hidden`] |
+//! | carving (views; bounding planes) | [`carve`], [`planes`] | [`carve::keep_hidden`], [`planes::keep_inside`] |
 //! | planes | [`planes`] | [`planes::complete_planes`] |
 //! | output folder | [`output`] | [`output::write_output`] |
 //!
