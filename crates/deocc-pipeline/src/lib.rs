@@ -190,7 +190,7 @@ pub fn run_observed(
         .then(|| planes::ScenePlanes::find(scene, &popts));
     let mut not_completed = scene.structure_ids.clone();
     if let (true, Some(found)) = (opts.skip_plane_pieces, &found) {
-        let pieces = planes::plane_pieces(scene, found, &popts, opts.plane_piece_min_fraction);
+        let pieces = planes::plane_pieces(found, &popts, opts.plane_piece_min_fraction);
         tracing::debug!("plane pieces, not completed: {pieces:?}");
         not_completed.extend(pieces);
     }
@@ -365,9 +365,11 @@ pub fn run_observed(
     }
     let mut points_carved = 0;
     if let (true, Some(found)) = (opts.carve_outside_bounding_planes_m > 0.0, &found) {
-        let planes = planes::bounding_planes(scene, found);
-        (generated, points_carved) =
-            planes::keep_inside(&generated, &planes, opts.carve_outside_bounding_planes_m);
+        (generated, points_carved) = planes::keep_inside(
+            &generated,
+            &found.bounding,
+            opts.carve_outside_bounding_planes_m,
+        );
     }
     if opts.carve_generated {
         let carved;

@@ -128,13 +128,8 @@ fn facing_cameras(
 /// the pieces a segmenter cut them into). They have no far side for a completer to add, and the
 /// plane fill completes their plane. A table top is no bounding plane (its legs and the floor
 /// lie below it): its underside is completed.
-pub fn plane_pieces(
-    scene: &SceneInput,
-    found: &ScenePlanes,
-    opts: &PlaneOptions,
-    min_fraction: f32,
-) -> Vec<u16> {
-    let planes = bounding_planes(scene, found);
+pub fn plane_pieces(found: &ScenePlanes, opts: &PlaneOptions, min_fraction: f32) -> Vec<u16> {
+    let planes = &found.bounding;
     if planes.is_empty() {
         return Vec::new();
     }
@@ -158,15 +153,17 @@ pub fn plane_pieces(
 /// The scene's bounding planes (`n . p = o`, the cameras on the positive side): the planes of
 /// large planar instances with every camera on one side and (almost) nothing observed more than
 /// 3 cm behind them (the floor and the walls).
-pub fn bounding_planes(scene: &SceneInput, found: &ScenePlanes) -> Vec<(Vector3<f32>, f32)> {
+fn bounding_planes(
+    scene: &SceneInput,
+    points: &InstancePoints,
+    planes: &[Plane],
+) -> Vec<(Vector3<f32>, f32)> {
     let centres: Vec<Point3<f32>> = scene.frames.iter().map(|f| f.camera.center()).collect();
-    let all: Vec<Point3<f32>> = found
-        .points
+    let all: Vec<Point3<f32>> = points
         .values()
         .flat_map(|(p, _)| p.iter().copied())
         .collect();
-    found
-        .planes
+    planes
         .iter()
         .filter_map(|pl| facing_cameras(pl.normal, pl.offset, &centres))
         .filter(|&(n, o)| {
@@ -176,7 +173,7 @@ pub fn bounding_planes(scene: &SceneInput, found: &ScenePlanes) -> Vec<(Vector3<
         .collect()
 }
 
-/// Drops the points more than `margin_m` behind a bounding plane ([`bounding_planes`]): under
+/// Drops the points more than `margin_m` behind a bounding plane ([`ScenePlanes::bounding`]): under
 /// the floor or behind a wall, where the views show nothing can be. Returns the kept cloud and
 /// how many points were dropped.
 pub fn keep_inside(
@@ -201,6 +198,9 @@ pub fn keep_inside(
 pub struct ScenePlanes {
     points: InstancePoints,
     planes: Vec<Plane>,
+    /// The scene's bounding planes (`n . p = o`, the cameras on the positive side): the floor
+    /// and the walls, for [`plane_pieces`] and [`keep_inside`].
+    pub bounding: Vec<(Vector3<f32>, f32)>,
 }
 
 impl ScenePlanes {
@@ -208,7 +208,12 @@ impl ScenePlanes {
     pub fn find(scene: &SceneInput, opts: &PlaneOptions) -> Self {
         let points = instance_points(scene, opts.stride);
         let planes = planes_of(points.clone(), opts);
-        Self { points, planes }
+        let bounding = bounding_planes(scene, &points, &planes);
+        Self {
+            points,
+            planes,
+            bounding,
+        }
     }
 }
 

@@ -1014,7 +1014,7 @@ fn floors_and_walls_are_plane_pieces_tables_are_not() {
         let rendered = render_full_scene(&config(), seed).unwrap();
         let scene = rendered.scene_input();
         let opts = PlaneOptions::default();
-        let pieces = plane_pieces(&scene, &ScenePlanes::find(&scene, &opts), &opts, 0.9);
+        let pieces = plane_pieces(&ScenePlanes::find(&scene, &opts), &opts, 0.9);
         for o in &rendered.scene.objects {
             let name = o.category.name();
             let seen = scene.frames.iter().any(|f| {
