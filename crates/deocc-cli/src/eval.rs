@@ -160,10 +160,10 @@ pub struct AmodalArgs {
     /// Override the model's mask threshold (from its train.json) for every figure.
     #[arg(long, allow_hyphen_values = true)]
     mask_threshold: Option<f32>,
-    /// Override the threshold of crops carrying other views' points (from its train.json;
-    /// a negative value: none, the plain threshold everywhere).
-    #[arg(long, allow_hyphen_values = true)]
-    mask_threshold_seen_elsewhere: Option<f32>,
+    /// Override the threshold of crops carrying other views' points (from its train.json):
+    /// a number, or `none` (the plain threshold everywhere), as `deocc export` takes it.
+    #[arg(long)]
+    mask_threshold_seen_elsewhere: Option<String>,
     /// Override the samples averaged per completion (from its train.json; 1 if absent).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
     samples: Option<u32>,
@@ -242,8 +242,8 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     if let Some(th) = a.mask_threshold {
         completer.mask_threshold = th;
     }
-    if let Some(th) = a.mask_threshold_seen_elsewhere {
-        completer.mask_threshold_seen_elsewhere = (th >= 0.0).then_some(th);
+    if let Some(th) = a.mask_threshold_seen_elsewhere.as_deref() {
+        completer.mask_threshold_seen_elsewhere = crate::train::parse_optional_threshold(th)?;
     }
     if let Some(n) = a.samples {
         completer.samples = n as usize;

@@ -247,11 +247,32 @@ pub fn export(a: ExportArgs) -> Result<()> {
 }
 
 /// `none`, or a threshold.
-fn parse_optional_threshold(s: &str) -> Result<Option<f32>> {
+pub(crate) fn parse_optional_threshold(s: &str) -> Result<Option<f32>> {
     if s == "none" {
         return Ok(None);
     }
-    s.parse::<f32>().map(Some).map_err(|e| {
+    let th = s.parse::<f32>().map_err(|e| {
         anyhow::anyhow!("--mask-threshold-seen-elsewhere {s:?} is neither a number nor `none`: {e}")
-    })
+    })?;
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&th),
+        "--mask-threshold-seen-elsewhere {s:?}: a probability threshold lies in [0, 1] (or `none`)"
+    );
+    Ok(Some(th))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_optional_threshold;
+
+    /// `none` and thresholds in [0, 1] are taken; anything else is refused with the flag named.
+    #[test]
+    fn optional_thresholds_are_none_or_a_probability() {
+        assert_eq!(parse_optional_threshold("none").unwrap(), None);
+        assert_eq!(parse_optional_threshold("0.8").unwrap(), Some(0.8));
+        for bad in ["-1", "1.5", "high", ""] {
+            let e = parse_optional_threshold(bad).unwrap_err().to_string();
+            assert!(e.contains("--mask-threshold-seen-elsewhere"), "{bad}: {e}");
+        }
+    }
 }

@@ -3,7 +3,8 @@
 //! The geometry core of deocc: pinhole cameras in the OpenCV convention, depth maps and their
 //! back-projection, point clouds with provenance, exact nearest neighbours (kiddo), the
 //! reconstruction metrics and alignment of the field's evaluation protocol (Umeyama + ICP), PCA
-//! normals, voxel downsampling and fusion, and a robust Huber line fit.
+//! normals, voxel downsampling and fusion, a robust Huber line fit, and exact point-to-triangle
+//! distances for scoring against a true surface.
 //!
 //! No ML dependency lives here: this crate is what a robotics user can take alone.
 //!
@@ -21,6 +22,7 @@ pub mod metrics;
 pub mod normals;
 pub mod reproject;
 pub mod robust;
+pub mod surface;
 pub mod voxel;
 
 pub use camera::{Camera, Intrinsics};

@@ -47,14 +47,11 @@ pub fn sample_surfaces(
             let range = chunk * CHUNK..((chunk + 1) * CHUNK).min(tris.corners.len());
             let (mut positions, mut normals, mut instance) = (Vec::new(), Vec::new(), Vec::new());
             for ti in range {
+                if !is_true_surface(scene, tris, ti) {
+                    continue;
+                }
                 let c = &tris.corners[ti];
                 let object = &scene.objects[tris.object[ti] as usize];
-                if object.category.is_structure() {
-                    let centroid = Point3::from((c[0].coords + c[1].coords + c[2].coords) / 3.0);
-                    if tris.normals[ti].dot(&(ROOM_INTERIOR - centroid)) <= 0.0 {
-                        continue;
-                    }
-                }
                 let area = 0.5 * (c[1] - c[0]).cross(&(c[2] - c[0])).norm();
                 let expected = area * density;
                 let mut n = expected as usize; // non-negative: truncation is floor
@@ -91,6 +88,28 @@ pub fn sample_surfaces(
         instance: Some(instance),
         ..Default::default()
     }
+}
+
+/// Whether triangle `ti` is part of the scene's true surface: every triangle but the room
+/// structure's faces away from the room (see [`sample_surfaces`]).
+pub fn is_true_surface(scene: &Scene, tris: &SceneTriangles, ti: usize) -> bool {
+    let object = &scene.objects[tris.object[ti] as usize];
+    if !object.category.is_structure() {
+        return true;
+    }
+    let c = &tris.corners[ti];
+    let centroid = Point3::from((c[0].coords + c[1].coords + c[2].coords) / 3.0);
+    tris.normals[ti].dot(&(ROOM_INTERIOR - centroid)) > 0.0
+}
+
+/// The triangles of the scene's true surface ([`is_true_surface`]), for exact distances to it
+/// ([`deocc_geometry::surface::TriangleSurface`]): its samples lie centimetres apart.
+pub fn true_surface(scene: &Scene) -> Vec<[Point3<f32>; 3]> {
+    let tris = SceneTriangles::new(scene);
+    (0..tris.corners.len())
+        .filter(|&ti| is_true_surface(scene, &tris, ti))
+        .map(|ti| tris.corners[ti])
+        .collect()
 }
 
 /// Is `p` (on object `id`) visible in `frame` rendered from `camera`? It must project inside the
