@@ -20,6 +20,9 @@ else:
         v = row["iou_vs_optimistic"]
         print(f"{row['map']:>22}  IoU {ci(row['iou'])}  false-placeable {ci(row['false_placeable_rate'])}  "
               f"success {ci(row['success'])}  no placement {row['no_placement']}  IoU vs optimistic {v['difference']:+.3f} [{v['ci95'][0]:+.3f}, {v['ci95'][1]:+.3f}]")
+        g = row.get("share_of_ground_truth_gain")
+        if g and g["share"] == g["share"]:
+            print(f"{'':>22}  share of the ground truth's gain over optimistic {g['share']:.2f} [{g['ci95'][0]:.2f}, {g['ci95'][1]:.2f}]")
     if "iou_behind" in r["rows"][0]:
         print(f"behind the clutter (cells the view does not see, {r['mean_behind_fraction']:.2f} of the table top):")
         for row in r["rows"]:
