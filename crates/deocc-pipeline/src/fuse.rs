@@ -55,6 +55,9 @@ pub struct FuseOptions<'a> {
     /// `seen_elsewhere`, infinite elsewhere): the near side there is their observation, already in
     /// the cloud, so no near-side point is generated; the far side is placed behind it.
     pub seen_elsewhere: Option<&'a [f32]>,
+    /// Revealed pixels (neither visible nor seen elsewhere) whose mask probability is below
+    /// this generate no point (0 = off).
+    pub min_revealed_confidence: f32,
 }
 
 /// The median of `values` over the `mask` pixels of each mask pixel's (2 radius + 1)^2 window
@@ -195,6 +198,10 @@ pub fn fuse_completion(
         } else if let Some(rel) = elsewhere {
             window.median_depth_m + rel * window.metric_scale_m
         } else {
+            let p = completion.mask_probability.get(k).copied().unwrap_or(1.0);
+            if p < opts.min_revealed_confidence {
+                continue;
+            }
             let z = fit.apply(near_depth[k] as f64) as f32;
             if !(z.is_finite() && z > 0.05) {
                 continue;
@@ -338,6 +345,7 @@ mod seen_elsewhere_tests {
                 median_px: 0,
                 max_thickness_m: 0.0,
                 seen_elsewhere: seen,
+                min_revealed_confidence: 0.0,
             };
             fuse_completion(
                 &window,
@@ -370,5 +378,41 @@ mod seen_elsewhere_tests {
         assert_eq!(at(&z(&with), generated_near), 7);
         // The far side stays where it was (5.5 cm behind the generated near side).
         assert_eq!(at(&z(&with), generated_near + 0.055), 8);
+    }
+
+    /// A revealed pixel below the confidence floor generates neither side; visible pixels keep
+    /// their far side whatever their probability, and a floor of 0 keeps everything.
+    #[test]
+    fn revealed_pixels_below_the_confidence_floor_generate_nothing() {
+        let (window, visible, mut completion, frame) = setup();
+        // Column 6's pixels (hidden) and column 1's (visible) are unsure.
+        for k in 0..64 {
+            if k % 8 == 6 || k % 8 == 1 {
+                completion.mask_probability[k] = 0.6;
+            }
+        }
+        let fuse = |floor: f32| {
+            let opts = FuseOptions {
+                min_revealed_confidence: floor,
+                ..Default::default()
+            };
+            fuse_completion(
+                &window,
+                &visible,
+                &completion,
+                &frame,
+                "t",
+                Provenance::Model,
+                &opts,
+            )
+            .0
+        };
+        let all = fuse(0.0);
+        let strict = fuse(0.9);
+        assert_eq!(all.len(), 32 + 64);
+        // Column 6: 8 near and 8 far points gone; column 1's far sides stay.
+        assert_eq!(strict.len(), all.len() - 16);
+        let confidence = strict.confidence.as_deref().unwrap();
+        assert_eq!(confidence.iter().filter(|&&c| c < 0.9).count(), 8);
     }
 }

@@ -256,6 +256,10 @@ pub fn run_observed(
                     _ => 0.0,
                 },
                 seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
+                min_revealed_confidence: match link.provenance() {
+                    Provenance::Model => opts.generated_min_revealed_confidence,
+                    _ => 0.0,
+                },
             },
         );
         if rec.accepted {

@@ -197,7 +197,9 @@ struct Stub {
 }
 
 const STUB_COLOUR: [u8; 3] = [1, 2, 3];
-const STUB_PROBABILITY: f32 = 0.7;
+/// Above the default floor of revealed pixels (`generated_min_revealed_confidence`, 0.9), so the
+/// stub's revealed pixels are fused.
+const STUB_PROBABILITY: f32 = 0.95;
 
 impl Completer for Stub {
     fn name(&self) -> &str {
