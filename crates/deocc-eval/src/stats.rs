@@ -66,14 +66,7 @@ pub fn compare(
             draws.push(s / n.max(1) as f64);
         }
     }
-    draws.sort_by(f64::total_cmp);
-    let q = |p: f64| -> f64 {
-        if draws.is_empty() {
-            f64::NAN
-        } else {
-            draws[((p * (draws.len() - 1) as f64).round() as usize).min(draws.len() - 1)]
-        }
-    };
+    let q = interval_quantiles(draws);
     Comparison {
         items: keep.len(),
         clusters: groups.len(),
@@ -158,6 +151,18 @@ mod tests {
     }
 }
 
+/// The bootstrap draws' quantile function (nearest rank; NaN without draws).
+fn interval_quantiles(mut draws: Vec<f64>) -> impl Fn(f64) -> f64 {
+    draws.sort_by(f64::total_cmp);
+    move |p: f64| {
+        if draws.is_empty() {
+            f64::NAN
+        } else {
+            draws[((p * (draws.len() - 1) as f64).round() as usize).min(draws.len() - 1)]
+        }
+    }
+}
+
 /// A mean with its 95% bootstrap interval (items resampled with replacement).
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Estimate {
@@ -228,14 +233,7 @@ pub fn share_of_bound(
             }
         }
     }
-    draws.sort_by(f64::total_cmp);
-    let q = |p: f64| -> f64 {
-        if draws.is_empty() {
-            f64::NAN
-        } else {
-            draws[((p * (draws.len() - 1) as f64).round() as usize).min(draws.len() - 1)]
-        }
-    };
+    let q = interval_quantiles(draws);
     ShareOfBound {
         items: keep.len(),
         gain,

@@ -334,29 +334,41 @@ mod seen_elsewhere_tests {
         (window, visible, completion, frame)
     }
 
+    /// The setup's completion fused as a model's.
+    fn fuse_model(
+        (window, visible, completion, frame): &(CropWindow, Vec<bool>, CropCompletion, Frame),
+        opts: &FuseOptions<'_>,
+    ) -> deocc_geometry::PointCloud {
+        fuse_completion(
+            window,
+            visible,
+            completion,
+            frame,
+            "t",
+            Provenance::Model,
+            opts,
+        )
+        .0
+    }
+
     /// Where another frame saw the object, fusion places no near-side point (that frame's point
     /// is in the cloud) but puts the far side behind the observed one.
     #[test]
     fn no_near_side_point_where_another_frame_saw_the_object() {
         let (window, visible, completion, frame) = setup();
         let fuse = |seen: Option<&[f32]>| {
-            let opts = FuseOptions {
-                spread: None,
-                median_px: 0,
-                max_thickness_m: 0.0,
-                seen_elsewhere: seen,
-                min_revealed_confidence: 0.0,
-            };
-            fuse_completion(
-                &window,
-                &visible,
-                &completion,
-                &frame,
-                "t",
-                Provenance::Model,
-                &opts,
+            fuse_model(
+                &(
+                    window.clone(),
+                    visible.clone(),
+                    completion.clone(),
+                    frame.clone(),
+                ),
+                &FuseOptions {
+                    seen_elsewhere: seen,
+                    ..Default::default()
+                },
             )
-            .0
         };
         let alone = fuse(None);
         // Hidden pixel (row 3, column 6) seen by another frame 2 cm nearer than generated.
@@ -391,21 +403,15 @@ mod seen_elsewhere_tests {
                 completion.mask_probability[k] = 0.6;
             }
         }
+        let setup = (window, visible, completion, frame);
         let fuse = |floor: f32| {
-            let opts = FuseOptions {
-                min_revealed_confidence: floor,
-                ..Default::default()
-            };
-            fuse_completion(
-                &window,
-                &visible,
-                &completion,
-                &frame,
-                "t",
-                Provenance::Model,
-                &opts,
+            fuse_model(
+                &setup,
+                &FuseOptions {
+                    min_revealed_confidence: floor,
+                    ..Default::default()
+                },
             )
-            .0
         };
         let all = fuse(0.0);
         let strict = fuse(0.9);
