@@ -445,8 +445,9 @@ pub fn object_benchmark(
         let mut scene = crate::scenes::unlabelled(rendered.scene_input());
         ensure_instances(&mut scene, &segmenter)?;
         let gt = &rendered.ground_truth;
+        let tris = deocc_synth::render::SceneTriangles::new(&rendered.scene);
         let surface = TriangleSurface::new(
-            deocc_synth::ground_truth::true_surface(&rendered.scene),
+            deocc_synth::ground_truth::true_surface(&rendered.scene, &tris),
             SURFACE_GRID_M,
         );
         {
@@ -454,7 +455,7 @@ pub fn object_benchmark(
             // objects (not the room), every point on it.
             let resample = deocc_synth::ground_truth::sample_surfaces(
                 &rendered.scene,
-                &deocc_synth::render::SceneTriangles::new(&rendered.scene),
+                &tris,
                 preset.config.gt_points_per_m2,
                 seed ^ 0x7265_7361_6d70,
             );

@@ -355,15 +355,11 @@ mod seen_elsewhere_tests {
     /// is in the cloud) but puts the far side behind the observed one.
     #[test]
     fn no_near_side_point_where_another_frame_saw_the_object() {
-        let (window, visible, completion, frame) = setup();
+        let setup = setup();
+        let completion = &setup.2;
         let fuse = |seen: Option<&[f32]>| {
             fuse_model(
-                &(
-                    window.clone(),
-                    visible.clone(),
-                    completion.clone(),
-                    frame.clone(),
-                ),
+                &setup,
                 &FuseOptions {
                     seen_elsewhere: seen,
                     ..Default::default()

@@ -104,10 +104,9 @@ pub fn is_true_surface(scene: &Scene, tris: &SceneTriangles, ti: usize) -> bool 
 
 /// The triangles of the scene's true surface ([`is_true_surface`]), for exact distances to it
 /// ([`deocc_geometry::surface::TriangleSurface`]): its samples lie centimetres apart.
-pub fn true_surface(scene: &Scene) -> Vec<[Point3<f32>; 3]> {
-    let tris = SceneTriangles::new(scene);
+pub fn true_surface(scene: &Scene, tris: &SceneTriangles) -> Vec<[Point3<f32>; 3]> {
     (0..tris.corners.len())
-        .filter(|&ti| is_true_surface(scene, &tris, ti))
+        .filter(|&ti| is_true_surface(scene, tris, ti))
         .map(|ti| tris.corners[ti])
         .collect()
 }
