@@ -68,6 +68,14 @@ pub struct TrainArgs {
     /// Weight of the mean head's L1 loss against the flow loss.
     #[arg(long, default_value_t = 1.0)]
     mean_loss_weight: f32,
+    /// Add the error head (the mean head's expected near- and far-side depth error, trained with
+    /// a Laplace likelihood, the mean held fixed); needs --mean-head. The pipeline leaves out
+    /// points expected further off than `generated_max_expected_error_m`.
+    #[arg(long, requires = "mean_head")]
+    error_head: bool,
+    /// Weight of the error head's loss against the flow loss.
+    #[arg(long, default_value_t = 1.0)]
+    error_loss_weight: f32,
     /// The share of training conditions (0-1) that carry what the other views observed of
     /// each object (pairs made since they store it), as the pipeline gives them with several
     /// frames; the rest train the one-view case. 0: the shipped weights were trained without.
@@ -95,6 +103,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
         model
             .validate()
             .map_err(|e| anyhow::anyhow!("--mean-head: {e}"))?;
+    }
+    if a.error_head {
+        model.error_head = true;
+        model
+            .validate()
+            .map_err(|e| anyhow::anyhow!("--error-head: {e}"))?;
     }
     let mut shards = shards(&a.data, "train")
         .with_context(|| format!("{}: cannot list training pairs", a.data.display()))?;
@@ -130,6 +144,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
             a.mean_loss_weight
         );
     }
+    if !(a.error_loss_weight.is_finite() && a.error_loss_weight >= 0.0) {
+        bail!(
+            "--error-loss-weight {} must be finite and non-negative",
+            a.error_loss_weight
+        );
+    }
     if !(a.mask_loss_weight.is_finite() && a.mask_loss_weight >= 0.0) {
         bail!(
             "--mask-loss-weight {} must be finite and non-negative",
@@ -148,6 +168,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         channel_loss_weights: a.channel_loss_weights,
         mask_loss_weight: a.mask_loss_weight,
         mean_loss_weight: a.mean_loss_weight,
+        error_loss_weight: a.error_loss_weight,
         other_views_observed: a.other_views_observed,
         ..TrainConfig::default()
     };

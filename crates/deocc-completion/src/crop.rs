@@ -224,6 +224,19 @@ pub struct CropCompletion {
     pub depth: Vec<f32>,
     /// (r*r) relative depth of its far side (its back, which no view shows).
     pub back_depth: Vec<f32>,
+    /// The completer's own estimate of how far off `depth` and `back_depth` are, per pixel, when
+    /// it has one (a learned error head); the pipeline leaves out points expected too far off.
+    pub expected_error: Option<ExpectedDepthError>,
+}
+
+/// A completer's expected absolute depth error per pixel, in relative depth (crop widths, the
+/// crop's depth unit; the pipeline turns it into metres with the depth fit's scale).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExpectedDepthError {
+    /// (r*r) of the near side.
+    pub near: Vec<f32>,
+    /// (r*r) of the far side.
+    pub far: Vec<f32>,
 }
 
 /// Sampling options every completer is called with (a rule-based one ignores them).

@@ -36,7 +36,8 @@ pub mod priors;
 pub mod rules;
 
 pub use crop::{
-    CompletionOptions, CropCompletion, CropCondition, CropRequest, Observed, SeenElsewhere,
+    CompletionOptions, CropCompletion, CropCondition, CropRequest, ExpectedDepthError, Observed,
+    SeenElsewhere,
 };
 pub use deocc_geometry::Provenance;
 pub use priors::MaskPrior;

@@ -82,6 +82,7 @@ impl RulesCompleter {
             rgb,
             depth,
             back_depth,
+            expected_error: None,
         }
     }
 }

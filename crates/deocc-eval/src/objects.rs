@@ -361,6 +361,9 @@ pub struct CompleterRow {
     pub completions_gated: usize,
     /// Generated points the mirror check left out (`gate_max_depth_spread_m`).
     pub points_spread_dropped: usize,
+    /// Generated points left out as expected further off than the pipeline's
+    /// `generated_max_expected_error_m`.
+    pub points_uncertain_dropped: usize,
     /// Completed instances, their accuracy and the gate's measurements.
     pub gate_study: Vec<GateStudyRow>,
     pub objects_per_second: f64,
@@ -431,6 +434,7 @@ pub fn object_benchmark(
     let mut widths = vec![[(0usize, 0usize, 0usize); CROP_WIDTH_BINS_M.len()]; chains.len() + 1];
     let mut gated = vec![0usize; chains.len() + 1];
     let mut spread_dropped = vec![0usize; chains.len() + 1];
+    let mut uncertain_dropped = vec![0usize; chains.len() + 1];
     let mut study: Vec<Vec<GateStudyRow>> = vec![Vec::new(); chains.len() + 1];
     // (points, within 2 cm of a sample, within 2 cm of the triangles) of the resamples.
     let mut calibration = (0usize, 0usize, 0usize);
@@ -504,6 +508,7 @@ pub fn object_benchmark(
             }
             gated[k] += out.report.completions_gated;
             spread_dropped[k] += out.report.points_spread_dropped;
+            uncertain_dropped[k] += out.report.points_uncertain_dropped;
             for (d, f) in distance[k].iter_mut().zip(fig.model_by_distance) {
                 *d += f;
             }
@@ -632,6 +637,7 @@ pub fn object_benchmark(
                     .collect(),
                 completions_gated: gated[k],
                 points_spread_dropped: spread_dropped[k],
+                points_uncertain_dropped: uncertain_dropped[k],
                 gate_study: study[k].clone(),
                 objects_per_second: timing[k].0 as f64 / timing[k].1.max(1e-9),
             }

@@ -79,10 +79,26 @@ pub struct GlDotConfig {
     /// beside it and is sampled when `inference_reads_mean` is off.
     #[serde(default)]
     pub mean_head: bool,
+    /// Two more output channels after the mean head: the expected absolute error of its near-side
+    /// and far-side depth, as `exp(channel + `[`ERROR_LOG_OFFSET`]`)` in relative depth (crop
+    /// widths), trained with a Laplace likelihood against the mean head's own error (the mean
+    /// held fixed, so the head learns how far off the mean is, not to move it). The pipeline
+    /// turns it into metres with the depth fit's scale and leaves out points expected further
+    /// off than its limit (`generated_max_expected_error_m`).
+    #[serde(default)]
+    pub error_head: bool,
 }
 
 /// Channels of the mean head: R, G, B, near side, far side (the target's channels 0-2, 4, 5).
 pub const MEAN_CHANNELS: usize = 5;
+
+/// Channels of the error head: near side, far side.
+pub const ERROR_CHANNELS: usize = 2;
+
+/// The error head's zero: `exp(ERROR_LOG_OFFSET)` = 0.05 crop widths, about the mean head's
+/// typical error, so a grown head starts near the right scale (a zero-initialised layer moves
+/// its output slowly).
+pub const ERROR_LOG_OFFSET: f32 = -3.0;
 
 impl GlDotConfig {
     /// For tests: a few thousand parameters' worth of everything.
@@ -104,6 +120,7 @@ impl GlDotConfig {
             base: ResidualBase::Rules,
             mask_head: true,
             mean_head: false,
+            error_head: false,
         }
     }
 
@@ -127,6 +144,7 @@ impl GlDotConfig {
             base: ResidualBase::Rules,
             mask_head: true,
             mean_head: false,
+            error_head: false,
         }
     }
 
@@ -150,6 +168,7 @@ impl GlDotConfig {
             base: ResidualBase::Rules,
             mask_head: true,
             mean_head: false,
+            error_head: false,
         }
     }
 
@@ -175,9 +194,12 @@ impl GlDotConfig {
         self.resolution / self.cond_patch
     }
     /// Output channels of the denoiser: the velocity of every target channel, the mask logit,
-    /// then the mean head's [`MEAN_CHANNELS`].
+    /// then the mean head's [`MEAN_CHANNELS`], then the error head's [`ERROR_CHANNELS`].
     pub fn out_channels(&self) -> usize {
-        self.target_channels + self.mask_head as usize + MEAN_CHANNELS * self.mean_head as usize
+        self.target_channels
+            + self.mask_head as usize
+            + MEAN_CHANNELS * self.mean_head as usize
+            + ERROR_CHANNELS * self.error_head as usize
     }
 
     pub fn mlp_hidden(&self) -> usize {
@@ -219,6 +241,9 @@ impl GlDotConfig {
                 "mean_head needs mask_head and residual (it is read beside the mask head, as a residual over the base)"
                     .into(),
             );
+        }
+        if self.error_head && !self.mean_head {
+            return Err("error_head needs mean_head (it estimates the mean head's error)".into());
         }
         if self.mask_head && (self.mask_prior == MaskPrior::Visible || self.target_channels < 6) {
             return Err(

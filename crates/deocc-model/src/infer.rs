@@ -71,6 +71,9 @@ pub struct Completion {
     pub depth_rel: Vec<f32>,
     /// (R*R) relative depth of the far side (the object's back).
     pub back_depth_rel: Vec<f32>,
+    /// The error head's expected absolute error of `depth_rel` and `back_depth_rel` (relative
+    /// depth), for models with one read through the mean head.
+    pub expected_error: Option<deocc_completion::ExpectedDepthError>,
 }
 
 impl GlDotCompleter {
@@ -221,6 +224,15 @@ impl GlDotCompleter {
             )?;
             let x0 = (residual + residual_prior(cond, cfg.mask_prior, cfg.base)?)?;
             let logit = (head + (cond.narrow(3, 6, 1)? * f64::from(PRIOR_LOGIT))?)?;
+            if cfg.error_head {
+                // The error head's log scale (its exp is taken per pixel after averaging).
+                let log_error = (out.narrow(
+                    3,
+                    tc + 1 + crate::config::MEAN_CHANNELS,
+                    crate::config::ERROR_CHANNELS,
+                )? + f64::from(crate::config::ERROR_LOG_OFFSET))?;
+                return Ok(Tensor::cat(&[&x0, &logit, &log_error], 3)?);
+            }
             return Ok(Tensor::cat(&[&x0, &logit], 3)?);
         }
         // The mask head is read at the first step (t = 1, pure noise), as it was trained.
@@ -371,6 +383,10 @@ impl GlDotCompleter {
         let n = r * r;
         let oc = x0.dim(3)?;
         let head = self.model.config.mask_head;
+        // The error head's two channels follow the mask logit when the mean head was read.
+        let error_at =
+            (self.model.config.error_head && self.reads_mean && oc >= TARGET_CHANNELS + 3)
+                .then_some(TARGET_CHANNELS + 1);
         Ok((0..b)
             .map(|k| {
                 let px = &data[k * n * oc..(k + 1) * n * oc];
@@ -418,6 +434,10 @@ impl GlDotCompleter {
                     mask_score,
                     depth_rel: px.chunks_exact(oc).map(|p| p[4] / DEPTH_SCALE).collect(),
                     back_depth_rel: px.chunks_exact(oc).map(|p| p[5] / DEPTH_SCALE).collect(),
+                    expected_error: error_at.map(|e| deocc_completion::ExpectedDepthError {
+                        near: px.chunks_exact(oc).map(|p| p[e].exp()).collect(),
+                        far: px.chunks_exact(oc).map(|p| p[e + 1].exp()).collect(),
+                    }),
                 }
             })
             .collect())
@@ -536,6 +556,9 @@ impl Completion {
                 self.mask_score[k] = self.mask_score[k].max(1.0);
                 self.depth_rel[k] = d;
                 self.rgb[3 * k..3 * k + 3].copy_from_slice(&seen.rgb[3 * k..3 * k + 3]);
+                if let Some(e) = self.expected_error.as_mut() {
+                    e.near[k] = 0.0; // observed
+                }
             }
         }
     }
@@ -568,6 +591,7 @@ impl Completion {
             rgb: self.rgb,
             depth: self.depth_rel,
             back_depth: self.back_depth_rel,
+            expected_error: self.expected_error,
         }
     }
 }

@@ -90,6 +90,9 @@ pub struct TrainConfig {
     pub mask_head_noise_fraction: f64,
     /// Weight of the mean head's L1 loss against the flow loss (models with `mean_head`).
     pub mean_loss_weight: f32,
+    /// Weight of the error head's Laplace likelihood against the flow loss (models with
+    /// `error_head`).
+    pub error_loss_weight: f32,
     /// Inference, not training: with a mean head, colour and depth are the mean head's, read at
     /// the first step (one forward pass); off, they are the flow's sample after all steps.
     pub inference_reads_mean: bool,
@@ -123,6 +126,7 @@ impl Default for TrainConfig {
             mask_loss_weight: 1.0,
             mask_head_noise_fraction: 0.5,
             mean_loss_weight: 1.0,
+            error_loss_weight: 1.0,
             inference_reads_mean: true,
             other_views_observed: 0.0,
         }
@@ -373,6 +377,12 @@ impl TrainConfig {
                 self.mean_loss_weight
             ));
         }
+        if !(self.error_loss_weight.is_finite() && self.error_loss_weight >= 0.0) {
+            return Err(format!(
+                "error_loss_weight = {} must be finite and non-negative",
+                self.error_loss_weight
+            ));
+        }
         let range = if self.model.mask_head {
             0.0..=1.0
         } else {
@@ -512,6 +522,48 @@ pub fn mean_head_loss(
     let total = w.iter().sum::<f32>().max(1.0) * crate::config::MEAN_CHANNELS as f32;
     let w = Tensor::from_vec(w, (b, r, r, 1), mean.device())?;
     (mean - want)?.abs()?.broadcast_mul(&w)?.sum_all()? / f64::from(total)
+}
+
+/// The error head's per-pixel weights (as the mean head's: hidden pixels of the object 1,
+/// visible ones [`MEAN_VISIBLE_WEIGHT`], others 0) and their sum.
+fn object_pixel_weights(target: &Tensor, cond: &Tensor) -> candle_core::Result<(Tensor, f32)> {
+    let (b, r, _, _) = target.dims4()?;
+    let object = target.narrow(3, 3, 1)?.flatten_all()?.to_vec1::<f32>()?;
+    let visible = cond.narrow(3, 3, 1)?.flatten_all()?.to_vec1::<f32>()?;
+    let w: Vec<f32> = object
+        .iter()
+        .zip(&visible)
+        .map(|(&m, &v)| match (m > 0.0, v > 0.0) {
+            (false, _) => 0.0,
+            (true, true) => MEAN_VISIBLE_WEIGHT,
+            (true, false) => 1.0,
+        })
+        .collect();
+    let total = w.iter().sum::<f32>();
+    Ok((Tensor::from_vec(w, (b, r, r, 1), target.device())?, total))
+}
+
+/// The error head's loss: the Laplace negative log-likelihood `e / s + ln s` of the mean head's
+/// absolute depth error `e` (near and far side, relative depth), with `s = exp(head +
+/// ERROR_LOG_OFFSET)` the head's expected absolute error, over the object's pixels weighted as
+/// the mean head's loss. The mean is held fixed (`mean` should come detached): the head learns
+/// how far off the mean is. Minimised at `s = E[e]` per pixel. `head` (B, R, R, 2), `mean` (B,
+/// R, R, [`crate::config::MEAN_CHANNELS`]), `residual` (B, R, R, 6) the target less the base.
+pub fn error_head_loss(
+    head: &Tensor,
+    mean: &Tensor,
+    residual: &Tensor,
+    target: &Tensor,
+    cond: &Tensor,
+) -> candle_core::Result<Tensor> {
+    let scale = f64::from(crate::encode::DEPTH_SCALE);
+    let err = ((mean.narrow(3, 3, 2)? - residual.narrow(3, 4, 2)?)?.abs()? / scale)?;
+    // The log scale, clamped so that exp(-log s) stays finite while the head is far off.
+    let log_s = (head + f64::from(crate::config::ERROR_LOG_OFFSET))?.clamp(-12f32, 4f32)?;
+    let nll = ((err * log_s.neg()?.exp()?)? + &log_s)?;
+    let (w, total) = object_pixel_weights(target, cond)?;
+    let total = total.max(1.0) * crate::config::ERROR_CHANNELS as f32;
+    nll.broadcast_mul(&w)?.sum_all()? / f64::from(total)
 }
 
 /// A training run in memory.
@@ -833,13 +885,23 @@ impl Trainer {
         let mean = out
             .narrow(3, m.target_channels + 1, crate::config::MEAN_CHANNELS)?
             .narrow(0, 0, head_samples)?;
-        let l1 = mean_head_loss(
-            &mean,
-            &x0.narrow(0, 0, head_samples)?,
-            &target.narrow(0, 0, head_samples)?,
-            &cond.narrow(0, 0, head_samples)?,
-        )?;
-        loss + (l1 * f64::from(cfg.mean_loss_weight))?
+        let residual = x0.narrow(0, 0, head_samples)?;
+        let target = target.narrow(0, 0, head_samples)?;
+        let cond = cond.narrow(0, 0, head_samples)?;
+        let l1 = mean_head_loss(&mean, &residual, &target, &cond)?;
+        let loss = (loss + (l1 * f64::from(cfg.mean_loss_weight))?)?;
+        if !m.error_head {
+            return Ok(loss);
+        }
+        let head = out
+            .narrow(
+                3,
+                m.target_channels + 1 + crate::config::MEAN_CHANNELS,
+                crate::config::ERROR_CHANNELS,
+            )?
+            .narrow(0, 0, head_samples)?;
+        let nll = error_head_loss(&head, &mean.detach(), &residual, &target, &cond)?;
+        loss + (nll * f64::from(cfg.error_loss_weight))?
     }
 
     /// One optimisation step on a random batch.

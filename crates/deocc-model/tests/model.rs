@@ -407,6 +407,87 @@ fn a_model_grown_by_the_mean_head_starts_at_the_base_and_learns() {
     assert!(no_mask.validate().unwrap_err().contains("mean_head needs"));
 }
 
+/// A mean-head model grown by the error head completes exactly as before, its zero head
+/// expecting `exp(ERROR_LOG_OFFSET)` everywhere; training then lowers the head's likelihood loss,
+/// and it refuses a model without a mean head.
+#[test]
+fn a_model_grown_by_the_error_head_keeps_its_answers_and_learns_its_error() {
+    use deocc_model::config::{ERROR_CHANNELS, ERROR_LOG_OFFSET, MEAN_CHANNELS};
+    let data = tiny_pairs();
+    let cfg = |model: GlDotConfig, steps: usize| TrainConfig {
+        model,
+        batch_size: 4,
+        steps,
+        learning_rate: 3e-3,
+        warmup_steps: 1,
+        ..TrainConfig::default()
+    };
+    let with_mean = GlDotConfig {
+        mean_head: true,
+        ..GlDotConfig::tiny()
+    };
+    let with_error = GlDotConfig {
+        error_head: true,
+        ..with_mean.clone()
+    };
+    let (a, b, _cond, mut grown, _dirs) =
+        grow_and_complete(&data, cfg(with_mean, 2), cfg(with_error, 200));
+    let zero = ERROR_LOG_OFFSET.exp();
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x.mask_score, y.mask_score);
+        assert_eq!(x.rgb, y.rgb);
+        assert_eq!(x.depth_rel, y.depth_rel);
+        assert_eq!(x.back_depth_rel, y.back_depth_rel);
+        assert!(x.expected_error.is_none());
+        let e = y
+            .expected_error
+            .as_ref()
+            .expect("the error head's estimate");
+        assert_eq!(e.near.len(), y.depth_rel.len());
+        assert!(e
+            .near
+            .iter()
+            .chain(&e.far)
+            .all(|&v| (v - zero).abs() < 1e-6 * zero.max(1.0)));
+    }
+    let error_loss = |t: &Trainer| {
+        use deocc_model::train::error_head_loss;
+        let idx: Vec<usize> = (0..data.len().min(8)).collect();
+        let flips = vec![false; idx.len()];
+        let (target, cond) = data.batch(&idx, &flips, &Device::Cpu).unwrap();
+        let base = deocc_model::encode::residual_prior(
+            &cond,
+            t.config.model.mask_prior,
+            t.config.model.base,
+        )
+        .unwrap();
+        let residual = (&target - base).unwrap();
+        let b = idx.len();
+        let r = t.config.model.resolution;
+        let noise = randn((b, r, r, 6), &mut rng(5), &Device::Cpu).unwrap();
+        let tt = Tensor::full(1f32, b, &Device::Cpu).unwrap();
+        let tokens = t.model.encode(&cond).unwrap();
+        let out = t.model.forward(&noise, &tt, &cond, &tokens).unwrap();
+        let mean = out.narrow(3, 7, MEAN_CHANNELS).unwrap();
+        let head = out.narrow(3, 7 + MEAN_CHANNELS, ERROR_CHANNELS).unwrap();
+        error_head_loss(&head, &mean, &residual, &target, &cond)
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap()
+    };
+    let before = error_loss(&grown);
+    for _ in 0..200 {
+        grown.step(&data).unwrap();
+    }
+    let after = error_loss(&grown);
+    assert!(after < before - 0.1, "error-head loss {before} -> {after}");
+    let no_mean = GlDotConfig {
+        error_head: true,
+        ..GlDotConfig::tiny()
+    };
+    assert!(no_mean.validate().unwrap_err().contains("error_head needs"));
+}
+
 /// Trains `old` two steps, warm-starts a fresh run of `new` from its EMA weights (growing the
 /// output layer), and completes pairs 0 and 1 with both: (old's, the grown one's, the condition,
 /// the grown trainer). The run folders live as long as the returned guard.

@@ -58,6 +58,12 @@ pub struct FuseOptions<'a> {
     /// Revealed pixels (neither visible nor seen elsewhere) whose mask probability is below
     /// this generate no point (0 = off).
     pub min_revealed_confidence: f32,
+    /// Points whose depth the completer itself expects to be further off than this (metres,
+    /// its [`deocc_completion::ExpectedDepthError`] through the depth fit's scale) are not
+    /// generated (0 = off; completions without an estimate are not affected): a revealed
+    /// pixel's near side takes its far side with it, as in the mirror check. Counted in the
+    /// record's `uncertain_dropped`.
+    pub max_expected_error_m: f32,
 }
 
 /// The median of `values` over the `mask` pixels of each mask pixel's (2 radius + 1)^2 window
@@ -120,6 +126,7 @@ pub fn fuse_completion(
         seen_through_fraction: None,
         gated: false,
         spread_dropped: 0,
+        uncertain_dropped: 0,
         accepted: false,
         reason: String::new(),
     };
@@ -158,6 +165,18 @@ pub fn fuse_completion(
             d.get(k).is_some_and(|&x| x * metres > s.max_m)
         })
     };
+    let expected = completion
+        .expected_error
+        .as_ref()
+        .filter(|_| opts.max_expected_error_m > 0.0);
+    let uncertain = |k: usize, far: bool| {
+        expected.is_some_and(|e| {
+            let d = if far { &e.far } else { &e.near };
+            d.get(k)
+                .is_some_and(|&x| !(x * metres <= opts.max_expected_error_m))
+        })
+    };
+    let mut uncertain_dropped = 0;
     let max_thick = if opts.max_thickness_m > 0.0 {
         opts.max_thickness_m
     } else {
@@ -214,6 +233,10 @@ pub fn fuse_completion(
                 spread_dropped += 1;
                 continue;
             }
+            if uncertain(k, false) {
+                uncertain_dropped += 1;
+                continue;
+            }
             push(k, z, 1.0);
             z
         };
@@ -226,12 +249,15 @@ pub fn fuse_completion(
         {
             if doubtful(k, true) {
                 spread_dropped += 1;
+            } else if uncertain(k, true) {
+                uncertain_dropped += 1;
             } else {
                 push(k, back, 0.75);
             }
         }
     }
     record.spread_dropped = spread_dropped;
+    record.uncertain_dropped = uncertain_dropped;
     record.new_points = positions.len();
     record.accepted = true;
     record.reason = "ok".into();
@@ -320,6 +346,7 @@ mod seen_elsewhere_tests {
             rgb: vec![100; 3 * r * r],
             depth: (0..r * r).map(|k| near(k) - 1.0).collect(),
             back_depth: (0..r * r).map(|k| near(k) - 1.0 + 0.055).collect(),
+            expected_error: None,
         };
         let frame = Frame {
             name: "f".into(),
@@ -416,5 +443,62 @@ mod seen_elsewhere_tests {
         assert_eq!(strict.len(), all.len() - 16);
         let confidence = strict.confidence.as_deref().unwrap();
         assert_eq!(confidence.iter().filter(|&&c| c < 0.9).count(), 8);
+    }
+
+    /// Points the completer expects further off than the limit (its relative error times the
+    /// fit's scale, here 1 m a unit) are not generated: a revealed pixel's near side takes its
+    /// far side with it, a visible pixel loses only its far side; no limit, no estimate or a
+    /// loose limit keep everything.
+    #[test]
+    fn points_expected_too_far_off_are_left_out() {
+        let (window, visible, mut completion, frame) = setup();
+        let base = fuse_model(
+            &(
+                window.clone(),
+                visible.clone(),
+                completion.clone(),
+                frame.clone(),
+            ),
+            &Default::default(),
+        );
+        // 1 cm expected everywhere; 4 cm on the near side of column 6 (hidden) and on the far
+        // side of column 1 (visible) and of column 5 (hidden).
+        let mut near = vec![0.01; 64];
+        let mut far = vec![0.01; 64];
+        for k in 0..64 {
+            match k % 8 {
+                6 => near[k] = 0.04,
+                1 | 5 => far[k] = 0.04,
+                _ => {}
+            }
+        }
+        completion.expected_error = Some(deocc_completion::ExpectedDepthError { near, far });
+        let setup = (window, visible, completion, frame);
+        let fuse = |limit: f32| {
+            let opts = FuseOptions {
+                max_expected_error_m: limit,
+                ..Default::default()
+            };
+            fuse_completion(
+                &setup.0,
+                &setup.1,
+                &setup.2,
+                &setup.3,
+                "t",
+                Provenance::Model,
+                &opts,
+            )
+        };
+        let (off, off_record) = fuse(0.0);
+        let (strict, record) = fuse(0.02);
+        let (loose, _) = fuse(0.05);
+        assert_eq!(base.len(), 32 + 64);
+        assert_eq!(off.len(), base.len());
+        assert_eq!(off_record.uncertain_dropped, 0);
+        assert_eq!(loose.len(), base.len());
+        // Column 6: 8 near and (with them) 8 far points; columns 1 and 5: 8 far points each.
+        assert_eq!(strict.len(), base.len() - 32);
+        assert_eq!(record.uncertain_dropped, 8 + 8 + 8);
+        assert_eq!(record.new_points, strict.len());
     }
 }

@@ -260,6 +260,7 @@ pub fn run_observed(
                     Provenance::Model => opts.generated_min_revealed_confidence,
                     _ => 0.0,
                 },
+                max_expected_error_m: opts.generated_max_expected_error_m,
             },
         );
         if rec.accepted {
@@ -297,6 +298,7 @@ pub fn run_observed(
             seen_through_fraction: None,
             gated: false,
             spread_dropped: 0,
+            uncertain_dropped: 0,
             accepted: false,
             reason: format!("declined: {}", d.reasons.join("; ")),
         });
@@ -496,6 +498,7 @@ fn make_report(
     let count = |p: Provenance| codes.iter().filter(|&&g| g == p.code()).count();
     let completions_gated = records.iter().filter(|r| r.gated).count();
     let points_spread_dropped = records.iter().map(|r| r.spread_dropped).sum();
+    let points_uncertain_dropped = records.iter().map(|r| r.uncertain_dropped).sum();
     RunReport {
         frames: scene.frames.len(),
         options: opts.clone(),
@@ -514,6 +517,7 @@ fn make_report(
         crops_declined,
         completions_gated,
         points_spread_dropped,
+        points_uncertain_dropped,
         timings,
         poses: if registration.is_empty() {
             "given"

@@ -114,6 +114,12 @@ pub struct PipelineOptions {
     /// the amodal mask): a stricter cut for 3-D points than the mask threshold
     /// ([`GENERATED_MIN_REVEALED_CONFIDENCE`]).
     pub generated_min_revealed_confidence: f32,
+    /// A learned completer that estimates its own depth error (GL-DoT's error head) generates no
+    /// point it expects further off than this, in metres through the depth fit (0 = off; no
+    /// effect on completers without an estimate): the model's own precision per pixel, where a
+    /// crop width cut treats a well-known table top like a chair's open seat
+    /// ([`GENERATED_MAX_EXPECTED_ERROR_M`]).
+    pub generated_max_expected_error_m: f32,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -157,6 +163,9 @@ pub const RULES_MAX_THICKNESS_M: f32 = 0.15;
 /// [+3.6%, +15.9%]), 0.97 does not (+5.8% [-0.4%, +13.0%]).
 pub const GENERATED_MIN_REVEALED_CONFIDENCE: f32 = 0.9;
 
+/// The error head's limit ([`PipelineOptions::generated_max_expected_error_m`]); 0 until chosen.
+pub const GENERATED_MAX_EXPECTED_ERROR_M: f32 = 0.0;
+
 impl Default for PipelineOptions {
     fn default() -> Self {
         Self {
@@ -190,6 +199,7 @@ impl Default for PipelineOptions {
             generated_max_thickness_m: GENERATED_MAX_THICKNESS_M,
             rules_max_thickness_m: RULES_MAX_THICKNESS_M,
             generated_min_revealed_confidence: GENERATED_MIN_REVEALED_CONFIDENCE,
+            generated_max_expected_error_m: GENERATED_MAX_EXPECTED_ERROR_M,
         }
     }
 }
@@ -309,6 +319,10 @@ impl PipelineOptions {
             ("gate_max_depth_spread_m", self.gate_max_depth_spread_m),
             ("generated_max_thickness_m", self.generated_max_thickness_m),
             ("rules_max_thickness_m", self.rules_max_thickness_m),
+            (
+                "generated_max_expected_error_m",
+                self.generated_max_expected_error_m,
+            ),
             (
                 "carve_outside_bounding_planes_m",
                 self.carve_outside_bounding_planes_m,

@@ -43,6 +43,9 @@ pub struct CompletionRecord {
     /// Points not generated because the completion of the mirrored crop put them more than
     /// [`PipelineOptions::gate_max_depth_spread_m`] away (0 when the mirror check is off).
     pub spread_dropped: usize,
+    /// Points not generated because the completer expected them further off than
+    /// [`PipelineOptions::generated_max_expected_error_m`] (0 when off).
+    pub uncertain_dropped: usize,
     pub accepted: bool,
     pub reason: String,
 }
@@ -102,6 +105,9 @@ pub struct RunReport {
     /// Generated points the mirror check left out
     /// ([`PipelineOptions::gate_max_depth_spread_m`]).
     pub points_spread_dropped: usize,
+    /// Generated points left out as expected too far off
+    /// ([`PipelineOptions::generated_max_expected_error_m`]).
+    pub points_uncertain_dropped: usize,
     pub timings: StageTimings,
     /// "given" (poses from cameras.json) or "icp" (pose-free input registered frame to frame).
     pub poses: &'static str,

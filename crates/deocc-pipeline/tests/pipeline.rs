@@ -246,6 +246,7 @@ impl Completer for Stub {
                         })
                         .collect(),
                     amodal,
+                    expected_error: None,
                 }
             })
             .collect())
