@@ -142,6 +142,75 @@ pub fn calibration(p: &[f32], labels: &[bool]) -> Calibration {
     }
 }
 
+/// Upper edges (crop widths) of the expected-error bins of [`ErrorHeadSide::bins`].
+pub const ERROR_BINS: [f32; 6] = [0.01, 0.02, 0.03, 0.05, 0.08, f32::INFINITY];
+
+/// An actual error above this (crop widths) is a "large" one for [`ErrorHeadSide::auc_large`].
+pub const LARGE_ERROR: f32 = 0.05;
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorHeadFigures {
+    pub near_hidden: ErrorHeadSide,
+    pub far: ErrorHeadSide,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorHeadSide {
+    pub pixels: usize,
+    /// Mean expected and mean actual absolute error (crop widths).
+    pub mean_expected: f64,
+    pub mean_actual: f64,
+    /// How well the expected error ranks the pixels whose actual error is above
+    /// [`LARGE_ERROR`] (0.5 = not at all).
+    pub auc_large: f64,
+    pub bins: Vec<ErrorBin>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorBin {
+    /// Upper edge of the expected error (crop widths); `None` = no limit.
+    pub expected_up_to: Option<f32>,
+    pub pixels: usize,
+    pub mean_expected: f64,
+    pub mean_actual: f64,
+    pub share_large: f64,
+}
+
+/// The error head's figures on (expected, actual) pixel errors.
+pub fn error_head_side(pairs: &[(f32, f32)]) -> ErrorHeadSide {
+    let mut acc = vec![(0usize, 0f64, 0f64, 0usize); ERROR_BINS.len()];
+    for &(e, a) in pairs {
+        let b = ERROR_BINS
+            .iter()
+            .position(|&hi| e <= hi)
+            .unwrap_or(ERROR_BINS.len() - 1);
+        acc[b].0 += 1;
+        acc[b].1 += f64::from(e);
+        acc[b].2 += f64::from(a);
+        acc[b].3 += (a > LARGE_ERROR) as usize;
+    }
+    let n = pairs.len().max(1) as f64;
+    let expected: Vec<f32> = pairs.iter().map(|p| p.0).collect();
+    let large: Vec<bool> = pairs.iter().map(|p| p.1 > LARGE_ERROR).collect();
+    ErrorHeadSide {
+        pixels: pairs.len(),
+        mean_expected: pairs.iter().map(|p| f64::from(p.0)).sum::<f64>() / n,
+        mean_actual: pairs.iter().map(|p| f64::from(p.1)).sum::<f64>() / n,
+        auc_large: crate::stats::roc_auc(&expected, &large),
+        bins: ERROR_BINS
+            .iter()
+            .zip(&acc)
+            .map(|(&hi, &(k, e, a, l))| ErrorBin {
+                expected_up_to: hi.is_finite().then_some(hi),
+                pixels: k,
+                mean_expected: e / k.max(1) as f64,
+                mean_actual: a / k.max(1) as f64,
+                share_large: l as f64 / k.max(1) as f64,
+            })
+            .collect(),
+    }
+}
+
 #[derive(Debug, Clone, Serialize)]
 pub struct CandidateAuc {
     /// Candidate pixels (not visible, the scene in front of the object): where a completer
@@ -235,6 +304,10 @@ pub struct AmodalReport {
     /// calibration error. The pipeline carries this probability to each generated point's
     /// confidence.
     pub candidate_calibration: Calibration,
+    /// Whether the error head's expected depth error means what it says (models with one):
+    /// hidden pixels' near side and the object's far side, after the Huber fit, binned by the
+    /// expected error.
+    pub error_head: Option<ErrorHeadFigures>,
     /// Hidden colour (mean absolute error per channel, 0-255) against the nearest visible colour.
     pub hidden_colour: Comparison,
     pub depth: DepthFigures,
@@ -282,6 +355,10 @@ struct PairScores {
     near_rules: f64,
     far_model: f64,
     far_rules: f64,
+    /// (expected, actual) errors of the model's near side on hidden pixels and far side on the
+    /// object's, where it has an error head.
+    error_near: Vec<(f32, f32)>,
+    error_far: Vec<(f32, f32)>,
 }
 
 /// One pair's scores (model and rules against the truth); the flag says whether the model's
@@ -323,6 +400,8 @@ fn score_pair(
         near_rules: f64::NAN,
         far_model: f64::NAN,
         far_rules: f64::NAN,
+        error_near: Vec::new(),
+        error_far: Vec::new(),
     };
     let whole_rgb = &set.whole_rgb[i * r * r * 3..(i + 1) * r * r * 3];
     if !hidden.is_empty() {
@@ -358,6 +437,14 @@ fn score_pair(
         ) {
             (s.near_model, s.far_model) = m;
             (s.near_rules, s.far_rules) = b;
+        }
+        if let Some(e) = &model.expected_error {
+            let near = median(&model.depth_rel);
+            let far = median(&model.back_depth_rel);
+            if let Some((n, f)) = pixel_errors(&near, &far, &case) {
+                s.error_near = case.hidden.iter().map(|&p| e.near[p]).zip(n).collect();
+                s.error_far = case.amodal.iter().map(|&p| e.far[p]).zip(f).collect();
+            }
         }
     }
     (s, radius > 0)
@@ -415,6 +502,23 @@ struct DepthCase<'a> {
     obs: &'a [f32],
     truth_near: &'a [f32],
     truth_far: &'a [f32],
+}
+
+/// Per-pixel absolute errors of the near side on the hidden pixels and of the far side on the
+/// amodal ones, after the Huber fit (as [`depth_errors`]).
+fn pixel_errors(near: &[f32], far: &[f32], case: &DepthCase<'_>) -> Option<(Vec<f32>, Vec<f32>)> {
+    let x: Vec<f32> = case.visible.iter().map(|&p| near[p]).collect();
+    let y: Vec<f32> = case.visible.iter().map(|&p| case.obs[p]).collect();
+    let fit = huber_affine_fit(&x, &y, &HuberOptions::default()).ok()?;
+    let err = |d: &[f32], truth: &[f32], px: &[usize]| -> Vec<f32> {
+        px.iter()
+            .map(|&p| (fit.apply(d[p] as f64) - truth[p] as f64).abs() as f32)
+            .collect()
+    };
+    Some((
+        err(near, case.truth_near, case.hidden),
+        err(far, case.truth_far, case.amodal),
+    ))
 }
 
 fn depth_errors(near: &[f32], far: &[f32], case: &DepthCase<'_>) -> Option<(f64, f64)> {
@@ -830,6 +934,23 @@ pub fn evaluate_amodal(
             distance_to_prior: roc_auc(&cand_dist, &cand_labels),
         },
         candidate_calibration: calibration(&cand_scores, &cand_labels),
+        error_head: scores
+            .iter()
+            .any(|s| !s.error_far.is_empty())
+            .then(|| ErrorHeadFigures {
+                near_hidden: error_head_side(
+                    &scores
+                        .iter()
+                        .flat_map(|s| s.error_near.iter().copied())
+                        .collect::<Vec<_>>(),
+                ),
+                far: error_head_side(
+                    &scores
+                        .iter()
+                        .flat_map(|s| s.error_far.iter().copied())
+                        .collect::<Vec<_>>(),
+                ),
+            }),
         hidden_colour: cmp(&|s| s.colour_model, &|s| s.colour_rules, &all, 21),
         depth: DepthFigures {
             near_hidden: cmp(&|s| s.near_model, &|s| s.near_rules, &all, 23),
@@ -862,4 +983,30 @@ pub fn evaluate_amodal(
         miou_by_seen_elsewhere_threshold,
         speed,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{error_head_side, ERROR_BINS};
+
+    /// Pixels land in the bin of their expected error, each bin's actual mean is its pixels',
+    /// and an expected error that ranks the large actual errors first scores an AUC of 1
+    /// (reversed, 0).
+    #[test]
+    fn error_head_figures_bin_by_the_expected_error() {
+        let pairs = [(0.005, 0.004), (0.015, 0.01), (0.04, 0.06), (0.2, 0.3)];
+        let f = error_head_side(&pairs);
+        assert_eq!(f.pixels, 4);
+        assert_eq!(f.bins.len(), ERROR_BINS.len());
+        let counts: Vec<usize> = f.bins.iter().map(|b| b.pixels).collect();
+        assert_eq!(counts, [1, 1, 0, 1, 0, 1]);
+        assert!((f.bins[3].mean_actual - 0.06).abs() < 1e-6);
+        assert_eq!(f.bins[3].share_large, 1.0);
+        assert_eq!(f.bins[0].share_large, 0.0);
+        assert!(f.bins[5].expected_up_to.is_none());
+        assert!((f.mean_actual - (0.004 + 0.01 + 0.06 + 0.3) / 4.0).abs() < 1e-6);
+        assert_eq!(f.auc_large, 1.0);
+        let reversed: Vec<(f32, f32)> = pairs.iter().map(|&(e, a)| (1.0 - e, a)).collect();
+        assert_eq!(error_head_side(&reversed).auc_large, 0.0);
+    }
 }
