@@ -12,6 +12,8 @@ for row in r["rows"]:
     print(f"{row['completer']:>12}  {row['objects']} objects  hidden recall {row['hidden_recall']:.3f} "
           f"(table-top {row['hidden_recall_tabletop']:.3f}, furniture {row['hidden_recall_furniture']:.3f})  "
           f"completeness {row['hidden_completeness_m'] * 100:.2f} cm  {row['objects_per_second']:.1f} objects/s  [{gen}]")
+    if row.get("points_uncertain_dropped"):
+        print(f"              points left out as expected too far off: {row['points_uncertain_dropped']}")
     by = row.get("model_by_category", {})
     if by:
         print("              GL-DoT points by object: " + ", ".join(

@@ -172,8 +172,9 @@ pub fn fuse_completion(
     let uncertain = |k: usize, far: bool| {
         expected.is_some_and(|e| {
             let d = if far { &e.far } else { &e.near };
+            // A NaN estimate is no estimate: leave the point out.
             d.get(k)
-                .is_some_and(|&x| !(x * metres <= opts.max_expected_error_m))
+                .is_some_and(|&x| x.is_nan() || x * metres > opts.max_expected_error_m)
         })
     };
     let mut uncertain_dropped = 0;
