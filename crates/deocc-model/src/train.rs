@@ -506,26 +506,14 @@ pub fn mean_head_loss(
     target: &Tensor,
     cond: &Tensor,
 ) -> candle_core::Result<Tensor> {
-    let (b, r, _, _) = mean.dims4()?;
     let want = Tensor::cat(&[residual.narrow(3, 0, 3)?, residual.narrow(3, 4, 2)?], 3)?;
-    let object = target.narrow(3, 3, 1)?.flatten_all()?.to_vec1::<f32>()?;
-    let visible = cond.narrow(3, 3, 1)?.flatten_all()?.to_vec1::<f32>()?;
-    let w: Vec<f32> = object
-        .iter()
-        .zip(&visible)
-        .map(|(&m, &v)| match (m > 0.0, v > 0.0) {
-            (false, _) => 0.0,
-            (true, true) => MEAN_VISIBLE_WEIGHT,
-            (true, false) => 1.0,
-        })
-        .collect();
-    let total = w.iter().sum::<f32>().max(1.0) * crate::config::MEAN_CHANNELS as f32;
-    let w = Tensor::from_vec(w, (b, r, r, 1), mean.device())?;
+    let (w, total) = object_pixel_weights(target, cond)?;
+    let total = total.max(1.0) * crate::config::MEAN_CHANNELS as f32;
     (mean - want)?.abs()?.broadcast_mul(&w)?.sum_all()? / f64::from(total)
 }
 
-/// The error head's per-pixel weights (as the mean head's: hidden pixels of the object 1,
-/// visible ones [`MEAN_VISIBLE_WEIGHT`], others 0) and their sum.
+/// The mean and error heads' per-pixel weights (hidden pixels of the object 1, visible ones
+/// [`MEAN_VISIBLE_WEIGHT`], others 0) and their sum.
 fn object_pixel_weights(target: &Tensor, cond: &Tensor) -> candle_core::Result<(Tensor, f32)> {
     let (b, r, _, _) = target.dims4()?;
     let object = target.narrow(3, 3, 1)?.flatten_all()?.to_vec1::<f32>()?;

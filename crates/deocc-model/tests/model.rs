@@ -371,22 +371,12 @@ fn a_model_grown_by_the_mean_head_starts_at_the_base_and_learns() {
     // The mean head's loss falls with training (the flow and mask losses train beside it).
     let mean_loss = |t: &Trainer| {
         use deocc_model::train::mean_head_loss;
-        let idx: Vec<usize> = (0..data.len().min(8)).collect();
-        let flips = vec![false; idx.len()];
-        let (target, cond) = data.batch(&idx, &flips, &Device::Cpu).unwrap();
-        let base = deocc_model::encode::residual_prior(
-            &cond,
-            t.config.model.mask_prior,
-            t.config.model.base,
-        )
-        .unwrap();
-        let residual = (&target - base).unwrap();
-        let b = idx.len();
-        let r = t.config.model.resolution;
-        let noise = randn((b, r, r, 6), &mut rng(5), &Device::Cpu).unwrap();
-        let tt = Tensor::full(1f32, b, &Device::Cpu).unwrap();
-        let tokens = t.model.encode(&cond).unwrap();
-        let out = t.model.forward(&noise, &tt, &cond, &tokens).unwrap();
+        let HeadBatch {
+            out,
+            residual,
+            target,
+            cond,
+        } = head_batch(t, &data);
         let mean = out.narrow(3, 7, 5).unwrap();
         mean_head_loss(&mean, &residual, &target, &cond)
             .unwrap()
@@ -452,22 +442,12 @@ fn a_model_grown_by_the_error_head_keeps_its_answers_and_learns_its_error() {
     }
     let error_loss = |t: &Trainer| {
         use deocc_model::train::error_head_loss;
-        let idx: Vec<usize> = (0..data.len().min(8)).collect();
-        let flips = vec![false; idx.len()];
-        let (target, cond) = data.batch(&idx, &flips, &Device::Cpu).unwrap();
-        let base = deocc_model::encode::residual_prior(
-            &cond,
-            t.config.model.mask_prior,
-            t.config.model.base,
-        )
-        .unwrap();
-        let residual = (&target - base).unwrap();
-        let b = idx.len();
-        let r = t.config.model.resolution;
-        let noise = randn((b, r, r, 6), &mut rng(5), &Device::Cpu).unwrap();
-        let tt = Tensor::full(1f32, b, &Device::Cpu).unwrap();
-        let tokens = t.model.encode(&cond).unwrap();
-        let out = t.model.forward(&noise, &tt, &cond, &tokens).unwrap();
+        let HeadBatch {
+            out,
+            residual,
+            target,
+            cond,
+        } = head_batch(t, &data);
         let mean = out.narrow(3, 7, MEAN_CHANNELS).unwrap();
         let head = out.narrow(3, 7 + MEAN_CHANNELS, ERROR_CHANNELS).unwrap();
         error_head_loss(&head, &mean, &residual, &target, &cond)
@@ -486,6 +466,37 @@ fn a_model_grown_by_the_error_head_keeps_its_answers_and_learns_its_error() {
         ..GlDotConfig::tiny()
     };
     assert!(no_mean.validate().unwrap_err().contains("error_head needs"));
+}
+
+/// A trainer's raw output at t = 1 on the first (up to) eight pairs, with the residual target
+/// and the batch it came from: what the heads' losses read.
+struct HeadBatch {
+    out: Tensor,
+    residual: Tensor,
+    target: Tensor,
+    cond: Tensor,
+}
+
+fn head_batch(t: &Trainer, data: &deocc_model::data::PairData) -> HeadBatch {
+    let idx: Vec<usize> = (0..data.len().min(8)).collect();
+    let flips = vec![false; idx.len()];
+    let (target, cond) = data.batch(&idx, &flips, &Device::Cpu).unwrap();
+    let base =
+        deocc_model::encode::residual_prior(&cond, t.config.model.mask_prior, t.config.model.base)
+            .unwrap();
+    let residual = (&target - base).unwrap();
+    let b = idx.len();
+    let r = t.config.model.resolution;
+    let noise = randn((b, r, r, 6), &mut rng(5), &Device::Cpu).unwrap();
+    let tt = Tensor::full(1f32, b, &Device::Cpu).unwrap();
+    let tokens = t.model.encode(&cond).unwrap();
+    let out = t.model.forward(&noise, &tt, &cond, &tokens).unwrap();
+    HeadBatch {
+        out,
+        residual,
+        target,
+        cond,
+    }
 }
 
 /// Trains `old` two steps, warm-starts a fresh run of `new` from its EMA weights (growing the

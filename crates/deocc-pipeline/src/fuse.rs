@@ -7,7 +7,10 @@
 //! depth may first be median-filtered over its amodal mask ([`median_within`]). With the mirror check,
 //! a point whose depth the completion of the mirrored crop puts more than a limit away (in
 //! metres, through the same fit) is not generated. With the thickness cap, neither is a far-side
-//! point more than a limit behind its near side.
+//! point more than a limit behind its near side. With the error gate, neither is a point the
+//! completer expects further off than a limit; those pixels are returned
+//! ([`fuse_completion_detailed`]) so that another completer may fill exactly them
+//! ([`FuseOptions::only`]).
 
 use deocc_completion::{CropCompletion, Provenance};
 use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
@@ -64,6 +67,36 @@ pub struct FuseOptions<'a> {
     /// pixel's near side takes its far side with it, as in the mirror check. Counted in the
     /// record's `uncertain_dropped`.
     pub max_expected_error_m: f32,
+    /// Only these pixels generate points (`None`: every pixel): how a fallback completer fills
+    /// the pixels another completer left out as too uncertain ([`UncertainPixels`]).
+    pub only: Option<&'a UncertainPixels>,
+}
+
+/// The pixels (r*r) whose points a completion left out because it expected them too far off
+/// ([`FuseOptions::max_expected_error_m`]): the revealed near sides (their far sides go with
+/// them) and the far sides. Another completer may fill exactly these ([`FuseOptions::only`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct UncertainPixels {
+    pub near: Vec<bool>,
+    pub far: Vec<bool>,
+}
+
+impl UncertainPixels {
+    fn new(n: usize) -> Self {
+        Self {
+            near: vec![false; n],
+            far: vec![false; n],
+        }
+    }
+
+    /// How many pixels left out a near side or a far side.
+    pub fn count(&self) -> usize {
+        self.near
+            .iter()
+            .zip(&self.far)
+            .filter(|(&a, &b)| a || b)
+            .count()
+    }
 }
 
 /// The median of `values` over the `mask` pixels of each mask pixel's (2 radius + 1)^2 window
@@ -109,9 +142,33 @@ pub fn fuse_completion(
     provenance: Provenance,
     opts: &FuseOptions<'_>,
 ) -> (PointCloud, CompletionRecord) {
+    let (cloud, record, _) = fuse_completion_detailed(
+        window, visible, completion, frame, completer, provenance, opts,
+    );
+    (cloud, record)
+}
+
+/// [`fuse_completion`], also returning the pixels left out as too uncertain (all false when the
+/// gate is off or the completion has no estimate).
+pub fn fuse_completion_detailed(
+    window: &CropWindow,
+    visible: &[bool],
+    completion: &CropCompletion,
+    frame: &Frame,
+    completer: &str,
+    provenance: Provenance,
+    opts: &FuseOptions<'_>,
+) -> (PointCloud, CompletionRecord, UncertainPixels) {
     let spread = opts.spread;
     let n = window.resolution * window.resolution;
     let vis: Vec<usize> = (0..n).filter(|&k| visible[k]).collect();
+    let mut left_out = UncertainPixels::new(n);
+    let allowed = |k: usize, far: bool| {
+        opts.only.is_none_or(|o| {
+            let m = if far { &o.far } else { &o.near };
+            m.get(k).copied().unwrap_or(false)
+        })
+    };
     let amodal_px = completion.amodal.iter().filter(|&&a| a).count();
     let mut record = CompletionRecord {
         instance_id: window.instance_id,
@@ -136,7 +193,7 @@ pub fn fuse_completion(
         Ok(f) => f,
         Err(e) => {
             record.reason = format!("depth fit failed: {e}");
-            return (PointCloud::default(), record);
+            return (PointCloud::default(), record, left_out);
         }
     };
     record.fit = Some(fit);
@@ -146,7 +203,7 @@ pub fn fuse_completion(
             "poor depth fit (alpha {:.3}, inliers {:.2}, residual scale {:.3} m)",
             fit.alpha, fit.inlier_fraction, fit.scale
         );
-        return (PointCloud::default(), record);
+        return (PointCloud::default(), record, left_out);
     }
     let r = window.resolution;
     let near_depth = median_within(&completion.depth, &completion.amodal, r, opts.median_px);
@@ -236,9 +293,13 @@ pub fn fuse_completion(
             }
             if uncertain(k, false) {
                 uncertain_dropped += 1;
+                left_out.near[k] = true;
+                left_out.far[k] = true;
                 continue;
             }
-            push(k, z, 1.0);
+            if allowed(k, false) {
+                push(k, z, 1.0);
+            }
             z
         };
         // Far side (the object's back, which no view shows), behind the near side.
@@ -252,7 +313,8 @@ pub fn fuse_completion(
                 spread_dropped += 1;
             } else if uncertain(k, true) {
                 uncertain_dropped += 1;
-            } else {
+                left_out.far[k] = true;
+            } else if allowed(k, true) {
                 push(k, back, 0.75);
             }
         }
@@ -271,7 +333,7 @@ pub fn fuse_completion(
         confidence: Some(confidence),
         normals: None,
     };
-    (cloud, record)
+    (cloud, record, left_out)
 }
 
 #[cfg(test)]
@@ -317,7 +379,7 @@ mod seen_elsewhere_tests {
     use deocc_geometry::DepthMap;
     use deocc_io::scene::Frame;
 
-    use super::{fuse_completion, FuseOptions};
+    use super::{fuse_completion, fuse_completion_detailed, FuseOptions};
     use crate::crops::CropWindow;
 
     /// An 8x8 view: the object's left half visible (depth 1 m + 1 cm a column), its right half
@@ -501,5 +563,55 @@ mod seen_elsewhere_tests {
         assert_eq!(strict.len(), base.len() - 32);
         assert_eq!(record.uncertain_dropped, 8 + 8 + 8);
         assert_eq!(record.new_points, strict.len());
+
+        // The pixels left out are named; a fallback completion fused over exactly them fills
+        // what the gate took out (here the same depths, as a completer without an estimate).
+        let (_, _, left_out) = fuse_completion_detailed(
+            &setup.0,
+            &setup.1,
+            &setup.2,
+            &setup.3,
+            "t",
+            Provenance::Model,
+            &FuseOptions {
+                max_expected_error_m: 0.02,
+                ..Default::default()
+            },
+        );
+        let col = |m: &[bool], c: &[usize]| (0..64).all(|k| m[k] == c.contains(&(k % 8)));
+        assert!(col(&left_out.near, &[6]), "{:?}", left_out.near);
+        assert!(col(&left_out.far, &[1, 5, 6]), "{:?}", left_out.far);
+        assert_eq!(left_out.count(), 24);
+        let mut fallback = setup.2.clone();
+        fallback.expected_error = None;
+        let (filled, filled_record) = fuse_completion(
+            &setup.0,
+            &setup.1,
+            &fallback,
+            &setup.3,
+            "rules",
+            Provenance::Rules,
+            &FuseOptions {
+                max_expected_error_m: 0.02,
+                only: Some(&left_out),
+                ..Default::default()
+            },
+        );
+        assert_eq!(filled.len(), 32);
+        assert_eq!(filled_record.uncertain_dropped, 0);
+        let mut both: Vec<[i64; 3]> = strict
+            .positions
+            .iter()
+            .chain(&filled.positions)
+            .map(|p| [p.x, p.y, p.z].map(|v| (v * 1e5).round() as i64))
+            .collect();
+        let mut all: Vec<[i64; 3]> = base
+            .positions
+            .iter()
+            .map(|p| [p.x, p.y, p.z].map(|v| (v * 1e5).round() as i64))
+            .collect();
+        both.sort_unstable();
+        all.sort_unstable();
+        assert_eq!(both, all, "gate plus fallback is the ungated cloud");
     }
 }

@@ -52,6 +52,7 @@ pub mod views;
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
+use deocc_completion::rules::RulesCompleter;
 use deocc_completion::{CompleterChain, Provenance};
 use deocc_geometry::voxel::fuse_generated;
 use deocc_geometry::PointCloud;
@@ -231,7 +232,7 @@ pub fn run_observed(
     let projectors: Vec<_> = scene.frames.iter().map(|f| f.camera.projector()).collect();
     for c in &completed_crops {
         let link = &chain.links()[c.completer];
-        let (mut cloud, mut rec) = fuse::fuse_completion(
+        let (mut cloud, mut rec, left_out) = fuse::fuse_completion_detailed(
             &c.window,
             &c.condition.visible,
             &c.completion,
@@ -261,8 +262,31 @@ pub fn run_observed(
                     _ => 0.0,
                 },
                 max_expected_error_m: opts.generated_max_expected_error_m,
+                only: None,
             },
         );
+        // The pixels the model expected too far off, completed by the rules instead.
+        let fallback = (opts.generated_uncertain_to_rules && rec.accepted && left_out.count() > 0)
+            .then(|| {
+                let rules = RulesCompleter {
+                    resolution: c.window.resolution,
+                    ..Default::default()
+                };
+                fuse::fuse_completion(
+                    &c.window,
+                    &c.condition.visible,
+                    &rules.complete_one(&c.condition),
+                    &scene.frames[c.window.view],
+                    "rules (where the model expected to be off)",
+                    Provenance::Rules,
+                    &fuse::FuseOptions {
+                        max_thickness_m: opts.rules_max_thickness_m,
+                        seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
+                        only: Some(&left_out),
+                        ..Default::default()
+                    },
+                )
+            });
         if rec.accepted {
             let v = gate::gate_completion(
                 &cloud,
@@ -282,7 +306,14 @@ pub fn run_observed(
             }
         }
         generated.append(&cloud);
+        let keep_fallback = rec.accepted;
         records.push(rec);
+        if let Some((extra, extra_rec)) = fallback.filter(|_| keep_fallback) {
+            if extra_rec.accepted {
+                generated.append(&extra);
+            }
+            records.push(extra_rec);
+        }
     }
     for d in &declined {
         records.push(CompletionRecord {

@@ -120,6 +120,10 @@ pub struct PipelineOptions {
     /// crop width cut treats a well-known table top like a chair's open seat
     /// ([`GENERATED_MAX_EXPECTED_ERROR_M`]).
     pub generated_max_expected_error_m: f32,
+    /// With that limit set, the pixels it leaves out are completed by the rules completer
+    /// instead (its near and far side there, as rules points), so that the model abstains where
+    /// it expects to be off rather than leaving a hole (off by default; docs/decisions.md).
+    pub generated_uncertain_to_rules: bool,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -204,6 +208,7 @@ impl Default for PipelineOptions {
             rules_max_thickness_m: RULES_MAX_THICKNESS_M,
             generated_min_revealed_confidence: GENERATED_MIN_REVEALED_CONFIDENCE,
             generated_max_expected_error_m: GENERATED_MAX_EXPECTED_ERROR_M,
+            generated_uncertain_to_rules: false,
         }
     }
 }
@@ -348,6 +353,13 @@ impl PipelineOptions {
         }
         if self.min_visible_px == 0 {
             return Err(bad("min_visible_px", "must be at least 1"));
+        }
+        if self.generated_uncertain_to_rules && self.generated_max_expected_error_m <= 0.0 {
+            return Err(bad(
+                "generated_uncertain_to_rules",
+                "needs generated_max_expected_error_m above 0 (the pixels it leaves out are \
+                 the ones the rules complete)",
+            ));
         }
         Ok(())
     }

@@ -1,7 +1,7 @@
 use deocc_completion::rules::RulesCompleter;
 use deocc_completion::{
     Completer, CompleterChain, CompletionError, CompletionOptions, CropCompletion, CropCondition,
-    CropRequest, Provenance,
+    CropRequest, ExpectedDepthError, Provenance,
 };
 use deocc_pipeline::{read_scene, PipelineOptions};
 use deocc_synth::dataset::{render_full_scene, write_scene};
@@ -194,6 +194,9 @@ fn plane_fill_lands_on_hidden_ground_truth() {
 struct Stub {
     max_width_m: f32,
     lopsided: f32,
+    /// The depth error it expects everywhere (relative), as GL-DoT's error head would say;
+    /// `None`: no estimate.
+    expected_error: Option<f32>,
 }
 
 const STUB_COLOUR: [u8; 3] = [1, 2, 3];
@@ -246,7 +249,10 @@ impl Completer for Stub {
                         })
                         .collect(),
                     amodal,
-                    expected_error: None,
+                    expected_error: self.expected_error.map(|e| ExpectedDepthError {
+                        near: vec![e; n],
+                        far: vec![e; n],
+                    }),
                 }
             })
             .collect())
@@ -271,6 +277,7 @@ fn run_completes_with_a_stub_completer() {
     let chain = CompleterChain::single(Stub {
         max_width_m: 100.0,
         lopsided: 0.0,
+        expected_error: None,
     });
     let opts = PipelineOptions {
         complete_planes: false,
@@ -345,6 +352,7 @@ fn the_quality_gate_rejects_doubtful_and_contradicted_completions() {
     let chain = CompleterChain::single(Stub {
         max_width_m: 100.0,
         lopsided: 0.0,
+        expected_error: None,
     });
     let strict = PipelineOptions {
         complete_planes: false,
@@ -416,6 +424,7 @@ fn run_plain_stub(
     let chain = CompleterChain::single(Stub {
         max_width_m: 100.0,
         lopsided: 0.0,
+        expected_error: None,
     });
     deocc_pipeline::run(scene, &chain, opts, &Vec::new()).unwrap()
 }
@@ -445,6 +454,7 @@ fn the_mirror_check_drops_points_the_mirrored_crop_contradicts() {
         let chain = CompleterChain::single(Stub {
             max_width_m: 100.0,
             lopsided,
+            expected_error: None,
         });
         deocc_pipeline::run(&scene, &chain, opts, &Vec::new()).unwrap()
     };
@@ -749,6 +759,7 @@ fn declined_crops_go_to_the_rules_completer() {
     let chain = CompleterChain::single(Stub {
         max_width_m: 0.0,
         lopsided: 0.0,
+        expected_error: None,
     })
     .then(RulesCompleter::default());
     let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
@@ -761,6 +772,7 @@ fn declined_crops_go_to_the_rules_completer() {
     let only_stub = CompleterChain::single(Stub {
         max_width_m: 0.0,
         lopsided: 0.0,
+        expected_error: None,
     });
     let out = deocc_pipeline::run(&scene, &only_stub, &opts, &Vec::new()).unwrap();
     assert_eq!(out.report.points_generated, 0);
@@ -1105,4 +1117,77 @@ fn a_frame_reprojected_into_its_own_crop_lands_on_its_visible_pixels() {
             with.prior.iter().filter(|&&p| p).count() >= cond.prior.iter().filter(|&&p| p).count()
         );
     }
+}
+
+/// With the error gate on, a model that expects every point too far off generates none; with the
+/// fallback on, the rules complete those pixels instead (rules points, their own records), and a
+/// model without an estimate is left alone.
+#[test]
+fn the_rules_complete_what_the_model_expects_to_be_off() {
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let run = |expected_error: Option<f32>, limit: f32, fallback: bool| {
+        let opts = PipelineOptions {
+            complete_planes: false,
+            revolve_upright: false,
+            cuboid_upright: false,
+            extend_to_support: false,
+            generated_max_expected_error_m: limit,
+            generated_uncertain_to_rules: fallback,
+            ..Default::default()
+        };
+        let chain = CompleterChain::single(Stub {
+            max_width_m: 100.0,
+            lopsided: 0.0,
+            expected_error,
+        });
+        deocc_pipeline::run(&scene, &chain, &opts, &Vec::new())
+            .unwrap()
+            .report
+    };
+    let plain = run(None, 0.0, false);
+    assert!(plain.points_model > 0);
+    assert_eq!(plain.points_rules, 0);
+    // No estimate: the gate and the fallback change nothing.
+    let no_estimate = run(None, 0.01, true);
+    assert_eq!(no_estimate.points_model, plain.points_model);
+    assert_eq!(no_estimate.points_rules, 0);
+    // Unsure everywhere (10 crop widths): nothing from the model.
+    let gated = run(Some(10.0), 0.01, false);
+    assert_eq!(gated.points_model, 0);
+    assert_eq!(gated.points_rules, 0);
+    assert!(gated.points_uncertain_dropped > 0);
+    let filled = run(Some(10.0), 0.01, true);
+    assert_eq!(filled.points_model, 0);
+    assert!(filled.points_rules > 0);
+    assert_eq!(
+        filled.points_uncertain_dropped,
+        gated.points_uncertain_dropped
+    );
+    let fallback_records = filled
+        .completions
+        .iter()
+        .filter(|c| c.completer.starts_with("rules"))
+        .count();
+    let model_records = filled
+        .completions
+        .iter()
+        .filter(|c| c.completer == "stub" && c.accepted)
+        .count();
+    assert!(fallback_records > 0 && fallback_records <= model_records);
+    // A fallback without a limit would do nothing: refused, naming the option.
+    let e = PipelineOptions {
+        generated_uncertain_to_rules: true,
+        ..Default::default()
+    }
+    .validate()
+    .unwrap_err();
+    assert!(
+        e.to_string().contains("generated_uncertain_to_rules"),
+        "{e}"
+    );
+    // Sure everywhere: the fallback has nothing to do.
+    let sure = run(Some(0.0), 0.01, true);
+    assert_eq!(sure.points_model, plain.points_model);
+    assert_eq!(sure.points_rules, 0);
 }
