@@ -38,6 +38,19 @@ for k, v in r["depth"].items():
                 print(f"  depth {cat:12s} {side:12s}", cmp(c))
         continue
     print(f"depth {k:22s}", cmp(v))
+e = r.get("error_head")
+if e:
+    for side, f in e.items():
+        bins = ", ".join(
+            f"<= {b['expected_up_to'] if b['expected_up_to'] is not None else 'inf'}: "
+            f"{b['pixels']} px {b['mean_expected']:.3f} / {b['mean_actual']:.3f} ({b['share_large']:.2f} large)"
+            for b in f["bins"]
+            if b["pixels"]
+        )
+        print(
+            f"error head {side:12s} expected {f['mean_expected']:.3f} / actual {f['mean_actual']:.3f}, "
+            f"AUC(large) {f['auc_large']:.3f}; {bins}"
+        )
 print("cross-view             ", cmp(r.get("cross_view")))
 s = r["steps"]
 print(f"steps ({s['pairs']} pairs): {s['miou_by_steps']}; main vs most: {cmp(s.get('main_vs_most'))}")

@@ -170,8 +170,7 @@ pub const GENERATED_MIN_REVEALED_CONFIDENCE: f32 = 0.9;
 /// The error head's limit ([`PipelineOptions::generated_max_expected_error_m`]): off. Measured with
 /// v19 (v18 with the error head; docs/decisions.md): at 0.03 m GL-DoT's points within 2 cm of a
 /// true surface 80.4% -> 82.2% on the test split, the chain's recall over the rules +12.6% ->
-/// +10.2%, furniture's from above the rules to 2.1% under; no limit met both goals, and the
-/// shipped model has no error head.
+/// +10.2%, furniture's from above the rules to 2.1% under; no limit met both goals.
 pub const GENERATED_MAX_EXPECTED_ERROR_M: f32 = 0.0;
 
 impl Default for PipelineOptions {
