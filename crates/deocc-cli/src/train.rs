@@ -81,6 +81,11 @@ pub struct TrainArgs {
     /// frames; the rest train the one-view case. 0: the shipped weights were trained without.
     #[arg(long, default_value_t = 0.0)]
     other_views_observed: f32,
+    /// Metric depth loss: the mean head's depth loss weighs each pair by its crop's width over
+    /// this many metres, clamped to [1, 2.5], so that wide crops (furniture), where the same
+    /// relative error is more centimetres, count more. 0 = off.
+    #[arg(long, default_value_t = 0.0)]
+    depth_loss_metric_width: f32,
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
@@ -144,6 +149,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
             a.mean_loss_weight
         );
     }
+    if !(a.depth_loss_metric_width.is_finite() && a.depth_loss_metric_width >= 0.0) {
+        bail!(
+            "--depth-loss-metric-width {} must be finite and non-negative (metres; 0 = off)",
+            a.depth_loss_metric_width
+        );
+    }
     if !(a.error_loss_weight.is_finite() && a.error_loss_weight >= 0.0) {
         bail!(
             "--error-loss-weight {} must be finite and non-negative",
@@ -170,6 +181,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         mean_loss_weight: a.mean_loss_weight,
         error_loss_weight: a.error_loss_weight,
         other_views_observed: a.other_views_observed,
+        depth_loss_metric_width_m: a.depth_loss_metric_width,
         ..TrainConfig::default()
     };
     let opts = TrainRunOptions {

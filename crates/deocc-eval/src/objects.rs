@@ -367,6 +367,19 @@ pub struct CompleterRow {
     /// Completed instances, their accuracy and the gate's measurements.
     pub gate_study: Vec<GateStudyRow>,
     pub objects_per_second: f64,
+    /// Each scored object's hidden recall, in the order of [`ObjectReport::objects`]: what
+    /// pairs two reports' rows object by object (`scripts/summarize_objects.py A --against B`).
+    pub hidden_recall_by_object: Vec<f32>,
+}
+
+/// One scored ground-truth object, the same in every row of a report.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScoredObject {
+    pub scene_seed: u64,
+    pub instance_id: u16,
+    pub category: String,
+    pub furniture: bool,
+    pub hidden_points: usize,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -377,6 +390,8 @@ pub struct ObjectReport {
     /// How "within 2 cm of a true surface" is measured.
     pub accuracy_measure: String,
     pub sample_metric_calibration: SampleMetricCalibration,
+    /// The scored objects, in the order of each row's `hidden_recall_by_object`.
+    pub objects: Vec<ScoredObject>,
     pub rows: Vec<CompleterRow>,
     /// Hidden recall of each completer against the rules completer, per object (paired,
     /// bootstrap over scenes).
@@ -640,6 +655,7 @@ pub fn object_benchmark(
                 points_uncertain_dropped: uncertain_dropped[k],
                 gate_study: study[k].clone(),
                 objects_per_second: timing[k].0 as f64 / timing[k].1.max(1e-9),
+                hidden_recall_by_object: s.iter().map(|o| o.hidden_recall as f32).collect(),
             }
         })
         .collect();
@@ -681,6 +697,16 @@ pub fn object_benchmark(
             within_2cm_of_samples: calibration.1 as f64 / calibration.0.max(1) as f64,
             within_2cm_of_surface: calibration.2 as f64 / calibration.0.max(1) as f64,
         },
+        objects: per_chain[0]
+            .iter()
+            .map(|o| ScoredObject {
+                scene_seed: o.scene_seed,
+                instance_id: o.instance_id,
+                category: o.category.clone(),
+                furniture: o.furniture,
+                hidden_points: o.hidden_points,
+            })
+            .collect(),
         rows,
         recall_vs_rules,
         recall_vs_rules_tabletop,

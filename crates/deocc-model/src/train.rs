@@ -101,6 +101,27 @@ pub struct TrainConfig {
     /// shipped weights were trained without them, and the README's training chain reproduces
     /// those.
     pub other_views_observed: f32,
+    /// Metric depth loss (0 = off): with a width `w` in metres, the mean head's near- and
+    /// far-side depth loss weighs each pair by its crop's width over `w`, clamped to [1,
+    /// [`MAX_METRIC_DEPTH_WEIGHT`]]. Depth is learned relative to the crop's width, but the
+    /// fusion's errors are in metres: a wide crop (a chair, a table) turns the same relative
+    /// error into several times the centimetres of a bottle's.
+    pub depth_loss_metric_width_m: f32,
+}
+
+/// The largest weight [`TrainConfig::depth_loss_metric_width_m`] gives a pair: about the
+/// pipeline's widest learned crop (0.6 m) over a 0.25 m reference, so that furniture crops the
+/// pipeline hands to the rules do not take over the loss.
+pub const MAX_METRIC_DEPTH_WEIGHT: f32 = 2.5;
+
+/// A pair's weight in the mean head's depth loss for a crop `crop_width_m` wide (NaN: unknown,
+/// weight 1) with reference width `reference_m` (0 = off, weight 1).
+pub fn metric_depth_weight(crop_width_m: f32, reference_m: f32) -> f32 {
+    if reference_m > 0.0 && crop_width_m.is_finite() {
+        (crop_width_m / reference_m).clamp(1.0, MAX_METRIC_DEPTH_WEIGHT)
+    } else {
+        1.0
+    }
 }
 
 impl Default for TrainConfig {
@@ -129,6 +150,7 @@ impl Default for TrainConfig {
             error_loss_weight: 1.0,
             inference_reads_mean: true,
             other_views_observed: 0.0,
+            depth_loss_metric_width_m: 0.0,
         }
     }
 }
@@ -377,6 +399,12 @@ impl TrainConfig {
                 self.mean_loss_weight
             ));
         }
+        if !(self.depth_loss_metric_width_m.is_finite() && self.depth_loss_metric_width_m >= 0.0) {
+            return Err(format!(
+                "depth_loss_metric_width_m = {} must be finite and non-negative (0 = off)",
+                self.depth_loss_metric_width_m
+            ));
+        }
         if !(self.error_loss_weight.is_finite() && self.error_loss_weight >= 0.0) {
             return Err(format!(
                 "error_loss_weight = {} must be finite and non-negative",
@@ -500,16 +528,33 @@ pub const MEAN_VISIBLE_WEIGHT: f32 = 0.25;
 /// R, 6)) over the object's pixels (the target mask, channel 3 of `target`), hidden pixels
 /// weighing 1 and visible ones [`MEAN_VISIBLE_WEIGHT`] (the visible mask, channel 3 of `cond`).
 /// L1, so the head estimates the median, which mean absolute errors reward.
+///
+/// `depth_weights`, one per pair ([`metric_depth_weight`]), multiply the pair's near- and
+/// far-side depth terms (`None`: all 1).
 pub fn mean_head_loss(
     mean: &Tensor,
     residual: &Tensor,
     target: &Tensor,
     cond: &Tensor,
+    depth_weights: Option<&[f32]>,
 ) -> candle_core::Result<Tensor> {
     let want = Tensor::cat(&[residual.narrow(3, 0, 3)?, residual.narrow(3, 4, 2)?], 3)?;
     let (w, total) = object_pixel_weights(target, cond)?;
     let total = total.max(1.0) * crate::config::MEAN_CHANNELS as f32;
-    (mean - want)?.abs()?.broadcast_mul(&w)?.sum_all()? / f64::from(total)
+    let err = (mean - want)?.abs()?.broadcast_mul(&w)?;
+    let err = match depth_weights {
+        Some(dw) => {
+            let c = crate::config::MEAN_CHANNELS;
+            let per_channel: Vec<f32> = dw
+                .iter()
+                .flat_map(|&d| (0..c).map(move |ch| if ch >= 3 { d } else { 1.0 }))
+                .collect();
+            let per_channel = Tensor::from_vec(per_channel, (dw.len(), 1, 1, c), mean.device())?;
+            err.broadcast_mul(&per_channel)?
+        }
+        None => err,
+    };
+    err.sum_all()? / f64::from(total)
 }
 
 /// The mean and error heads' per-pixel weights (hidden pixels of the object 1, visible ones
@@ -876,7 +921,16 @@ impl Trainer {
         let residual = x0.narrow(0, 0, head_samples)?;
         let target = target.narrow(0, 0, head_samples)?;
         let cond = cond.narrow(0, 0, head_samples)?;
-        let l1 = mean_head_loss(&mean, &residual, &target, &cond)?;
+        let depth_weights = (cfg.depth_loss_metric_width_m > 0.0).then(|| {
+            indices[..head_samples]
+                .iter()
+                .map(|&i| {
+                    let width = data.set.crop_width_m.get(i).copied().unwrap_or(f32::NAN);
+                    metric_depth_weight(width, cfg.depth_loss_metric_width_m)
+                })
+                .collect::<Vec<f32>>()
+        });
+        let l1 = mean_head_loss(&mean, &residual, &target, &cond, depth_weights.as_deref())?;
         let loss = (loss + (l1 * f64::from(cfg.mean_loss_weight))?)?;
         if !m.error_head {
             return Ok(loss);

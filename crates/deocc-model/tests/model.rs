@@ -378,7 +378,7 @@ fn a_model_grown_by_the_mean_head_starts_at_the_base_and_learns() {
             cond,
         } = head_batch(t, &data);
         let mean = out.narrow(3, 7, 5).unwrap();
-        mean_head_loss(&mean, &residual, &target, &cond)
+        mean_head_loss(&mean, &residual, &target, &cond, None)
             .unwrap()
             .to_scalar::<f32>()
             .unwrap()
@@ -395,6 +395,64 @@ fn a_model_grown_by_the_mean_head_starts_at_the_base_and_learns() {
         ..GlDotConfig::tiny()
     };
     assert!(no_mask.validate().unwrap_err().contains("mean_head needs"));
+}
+
+/// The metric depth loss: a pair's weight is its crop width over the reference, clamped to [1,
+/// 2.5] (1 when unknown or off), and it multiplies only the depth terms of the mean head's loss,
+/// linearly.
+#[test]
+fn the_metric_depth_weight_scales_only_the_depth_terms() {
+    use deocc_model::train::{mean_head_loss, metric_depth_weight, MAX_METRIC_DEPTH_WEIGHT};
+    assert_eq!(metric_depth_weight(0.7, 0.35), 2.0);
+    assert_eq!(
+        metric_depth_weight(0.1, 0.35),
+        1.0,
+        "narrow crops keep weight 1"
+    );
+    assert_eq!(metric_depth_weight(9.0, 0.35), MAX_METRIC_DEPTH_WEIGHT);
+    assert_eq!(metric_depth_weight(f32::NAN, 0.35), 1.0);
+    assert_eq!(metric_depth_weight(0.7, 0.0), 1.0, "off");
+    let data = tiny_pairs();
+    let t = Trainer::new(
+        TrainConfig {
+            model: GlDotConfig {
+                mean_head: true,
+                ..GlDotConfig::tiny()
+            },
+            ..TrainConfig::default()
+        },
+        &Device::Cpu,
+    )
+    .unwrap();
+    let HeadBatch {
+        out,
+        residual,
+        target,
+        cond,
+    } = head_batch(&t, &data);
+    // A mean that is off in every channel, so that colour and depth both have a loss.
+    let mean = (out.narrow(3, 7, 5).unwrap() + 0.3).unwrap();
+    let b = mean.dims4().unwrap().0;
+    let loss = |w: Option<Vec<f32>>| {
+        mean_head_loss(&mean, &residual, &target, &cond, w.as_deref())
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap()
+    };
+    let plain = loss(None);
+    let ones = loss(Some(vec![1.0; b]));
+    let twos = loss(Some(vec![2.0; b]));
+    let threes = loss(Some(vec![3.0; b]));
+    assert!((plain - ones).abs() < 1e-6, "{plain} vs {ones}");
+    // The depth part is what each unit of weight adds; the colour part stays.
+    let depth = twos - ones;
+    assert!(depth > 0.0 && depth < ones, "depth part {depth} of {ones}");
+    assert!(((threes - twos) - depth).abs() < 1e-4 * ones, "not linear");
+    // Weighting one pair moves the loss by less than weighting all of them.
+    let mut one = vec![1.0; b];
+    one[0] = 2.0;
+    let single = loss(Some(one));
+    assert!(single > ones && single < twos, "{ones} < {single} < {twos}");
 }
 
 /// A mean-head model grown by the error head completes exactly as before, its zero head
