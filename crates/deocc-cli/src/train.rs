@@ -86,6 +86,10 @@ pub struct TrainArgs {
     /// relative error is more centimetres, count more. 0 = off.
     #[arg(long, default_value_t = 0.0)]
     depth_loss_metric_width: f32,
+    /// The mean head's far side weighs visible pixels fully (1, not 0.25 as the visible colour
+    /// and near side): an object's back is hidden behind every visible pixel.
+    #[arg(long)]
+    far_side_full_weight: bool,
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
@@ -182,6 +186,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         error_loss_weight: a.error_loss_weight,
         other_views_observed: a.other_views_observed,
         depth_loss_metric_width_m: a.depth_loss_metric_width,
+        far_side_full_weight: a.far_side_full_weight,
         ..TrainConfig::default()
     };
     let opts = TrainRunOptions {

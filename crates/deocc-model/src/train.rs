@@ -107,6 +107,10 @@ pub struct TrainConfig {
     /// fusion's errors are in metres: a wide crop (a chair, a table) turns the same relative
     /// error into several times the centimetres of a bottle's.
     pub depth_loss_metric_width_m: f32,
+    /// The mean head's far side weighs 1 at visible pixels too, not [`MEAN_VISIBLE_WEIGHT`]:
+    /// an object's back is hidden wherever its front is visible, and those pixels place most of
+    /// the fused far side.
+    pub far_side_full_weight: bool,
 }
 
 /// The largest weight [`TrainConfig::depth_loss_metric_width_m`] gives a pair: about the
@@ -151,6 +155,7 @@ impl Default for TrainConfig {
             inference_reads_mean: true,
             other_views_observed: 0.0,
             depth_loss_metric_width_m: 0.0,
+            far_side_full_weight: false,
         }
     }
 }
@@ -529,20 +534,35 @@ pub const MEAN_VISIBLE_WEIGHT: f32 = 0.25;
 /// weighing 1 and visible ones [`MEAN_VISIBLE_WEIGHT`] (the visible mask, channel 3 of `cond`).
 /// L1, so the head estimates the median, which mean absolute errors reward.
 ///
-/// `depth_weights`, one per pair ([`metric_depth_weight`]), multiply the pair's near- and
-/// far-side depth terms (`None`: all 1).
+/// `weights` sets what the defaults leave as above: per-pair depth weights
+/// ([`metric_depth_weight`]) and the visible pixels' weight on the far side.
 pub fn mean_head_loss(
     mean: &Tensor,
     residual: &Tensor,
     target: &Tensor,
     cond: &Tensor,
-    depth_weights: Option<&[f32]>,
+    weights: &MeanLossWeights<'_>,
 ) -> candle_core::Result<Tensor> {
     let want = Tensor::cat(&[residual.narrow(3, 0, 3)?, residual.narrow(3, 4, 2)?], 3)?;
     let (w, total) = object_pixel_weights(target, cond)?;
     let total = total.max(1.0) * crate::config::MEAN_CHANNELS as f32;
-    let err = (mean - want)?.abs()?.broadcast_mul(&w)?;
-    let err = match depth_weights {
+    let raw = (mean - want)?.abs()?;
+    let err = if weights.far_visible == MEAN_VISIBLE_WEIGHT {
+        raw.broadcast_mul(&w)?
+    } else {
+        // The far side is hidden at visible pixels too: no view shows an object's back.
+        let visible = cond.narrow(3, 3, 1)?.gt(0f32)?.to_dtype(w.dtype())?;
+        let w_far = (&w + (visible * f64::from(weights.far_visible - MEAN_VISIBLE_WEIGHT))?)?;
+        let c = crate::config::MEAN_CHANNELS;
+        Tensor::cat(
+            &[
+                raw.narrow(3, 0, c - 1)?.broadcast_mul(&w)?,
+                raw.narrow(3, c - 1, 1)?.broadcast_mul(&w_far)?,
+            ],
+            3,
+        )?
+    };
+    let err = match weights.depth {
         Some(dw) => {
             let c = crate::config::MEAN_CHANNELS;
             let per_channel: Vec<f32> = dw
@@ -555,6 +575,25 @@ pub fn mean_head_loss(
         None => err,
     };
     err.sum_all()? / f64::from(total)
+}
+
+/// What the mean head's loss weighs besides the object's pixels ([`mean_head_loss`]).
+#[derive(Debug, Clone, Copy)]
+pub struct MeanLossWeights<'a> {
+    /// Per pair: multiplies its near- and far-side depth terms (`None`: 1).
+    pub depth: Option<&'a [f32]>,
+    /// A visible pixel's weight on the far side ([`MEAN_VISIBLE_WEIGHT`] by default, as on the
+    /// other channels).
+    pub far_visible: f32,
+}
+
+impl Default for MeanLossWeights<'_> {
+    fn default() -> Self {
+        Self {
+            depth: None,
+            far_visible: MEAN_VISIBLE_WEIGHT,
+        }
+    }
 }
 
 /// The mean and error heads' per-pixel weights (hidden pixels of the object 1, visible ones
@@ -930,7 +969,20 @@ impl Trainer {
                 })
                 .collect::<Vec<f32>>()
         });
-        let l1 = mean_head_loss(&mean, &residual, &target, &cond, depth_weights.as_deref())?;
+        let l1 = mean_head_loss(
+            &mean,
+            &residual,
+            &target,
+            &cond,
+            &MeanLossWeights {
+                depth: depth_weights.as_deref(),
+                far_visible: if cfg.far_side_full_weight {
+                    1.0
+                } else {
+                    MEAN_VISIBLE_WEIGHT
+                },
+            },
+        )?;
         let loss = (loss + (l1 * f64::from(cfg.mean_loss_weight))?)?;
         if !m.error_head {
             return Ok(loss);

@@ -378,7 +378,7 @@ fn a_model_grown_by_the_mean_head_starts_at_the_base_and_learns() {
             cond,
         } = head_batch(t, &data);
         let mean = out.narrow(3, 7, 5).unwrap();
-        mean_head_loss(&mean, &residual, &target, &cond, None)
+        mean_head_loss(&mean, &residual, &target, &cond, &Default::default())
             .unwrap()
             .to_scalar::<f32>()
             .unwrap()
@@ -402,7 +402,10 @@ fn a_model_grown_by_the_mean_head_starts_at_the_base_and_learns() {
 /// linearly.
 #[test]
 fn the_metric_depth_weight_scales_only_the_depth_terms() {
-    use deocc_model::train::{mean_head_loss, metric_depth_weight, MAX_METRIC_DEPTH_WEIGHT};
+    use deocc_model::train::{
+        mean_head_loss, metric_depth_weight, MeanLossWeights, MAX_METRIC_DEPTH_WEIGHT,
+        MEAN_VISIBLE_WEIGHT,
+    };
     assert_eq!(metric_depth_weight(0.7, 0.35), 2.0);
     assert_eq!(
         metric_depth_weight(0.1, 0.35),
@@ -434,10 +437,19 @@ fn the_metric_depth_weight_scales_only_the_depth_terms() {
     let mean = (out.narrow(3, 7, 5).unwrap() + 0.3).unwrap();
     let b = mean.dims4().unwrap().0;
     let loss = |w: Option<Vec<f32>>| {
-        mean_head_loss(&mean, &residual, &target, &cond, w.as_deref())
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
+        mean_head_loss(
+            &mean,
+            &residual,
+            &target,
+            &cond,
+            &MeanLossWeights {
+                depth: w.as_deref(),
+                ..Default::default()
+            },
+        )
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap()
     };
     let plain = loss(None);
     let ones = loss(Some(vec![1.0; b]));
@@ -453,6 +465,35 @@ fn the_metric_depth_weight_scales_only_the_depth_terms() {
     one[0] = 2.0;
     let single = loss(Some(one));
     assert!(single > ones && single < twos, "{ones} < {single} < {twos}");
+    // The far side's visible weight: the default equals the plain loss, a full weight adds the
+    // visible pixels' far-side error, and only that (a zero far-side error adds nothing).
+    let far = |far_visible: f32, mean: &Tensor| {
+        mean_head_loss(
+            mean,
+            &residual,
+            &target,
+            &cond,
+            &MeanLossWeights {
+                depth: None,
+                far_visible,
+            },
+        )
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap()
+    };
+    assert!((far(MEAN_VISIBLE_WEIGHT, &mean) - plain).abs() < 1e-6);
+    assert!(
+        far(1.0, &mean) > plain,
+        "a full far-side weight adds the visible pixels' error"
+    );
+    let want_far = residual.narrow(3, 5, 1).unwrap();
+    let exact_far = Tensor::cat(&[mean.narrow(3, 0, 4).unwrap(), want_far], 3).unwrap();
+    let base = far(MEAN_VISIBLE_WEIGHT, &exact_far);
+    assert!(
+        (far(1.0, &exact_far) - base).abs() < 1e-6,
+        "no far-side error, no change"
+    );
 }
 
 /// A mean-head model grown by the error head completes exactly as before, its zero head
