@@ -340,18 +340,8 @@ fn rules_base_targets_are_the_base_outside_the_object() {
 fn a_model_grown_by_the_mean_head_starts_at_the_base_and_learns() {
     use deocc_model::encode::{COND_CHANNELS, DEPTH_SCALE};
     let data = tiny_pairs();
-    let cfg = |model: GlDotConfig, steps: usize| TrainConfig {
-        model,
-        batch_size: 4,
-        steps,
-        learning_rate: 3e-3,
-        warmup_steps: 1,
-        ..TrainConfig::default()
-    };
-    let with_mean = GlDotConfig {
-        mean_head: true,
-        ..GlDotConfig::tiny()
-    };
+    let cfg = grow_config;
+    let with_mean = tiny_with_mean_head();
     let (a, b, cond, mut grown, _dirs) =
         grow_and_complete(&data, cfg(GlDotConfig::tiny(), 2), cfg(with_mean, 200));
     let c: Vec<f32> = cond.flatten_all().unwrap().to_vec1().unwrap();
@@ -503,18 +493,8 @@ fn the_metric_depth_weight_scales_only_the_depth_terms() {
 fn a_model_grown_by_the_error_head_keeps_its_answers_and_learns_its_error() {
     use deocc_model::config::{ERROR_CHANNELS, ERROR_LOG_OFFSET, MEAN_CHANNELS};
     let data = tiny_pairs();
-    let cfg = |model: GlDotConfig, steps: usize| TrainConfig {
-        model,
-        batch_size: 4,
-        steps,
-        learning_rate: 3e-3,
-        warmup_steps: 1,
-        ..TrainConfig::default()
-    };
-    let with_mean = GlDotConfig {
-        mean_head: true,
-        ..GlDotConfig::tiny()
-    };
+    let cfg = grow_config;
+    let with_mean = tiny_with_mean_head();
     let with_error = GlDotConfig {
         error_head: true,
         ..with_mean.clone()
@@ -633,4 +613,24 @@ fn grow_and_complete(
     };
     let (a, b) = (complete(old_dir.path()), complete(new_dir.path()));
     (a, b, cond, grown, [old_dir, new_dir])
+}
+
+/// The training set-up of the grown-model tests: small batches, a high rate, no warm-up.
+fn grow_config(model: GlDotConfig, steps: usize) -> TrainConfig {
+    TrainConfig {
+        model,
+        batch_size: 4,
+        steps,
+        learning_rate: 3e-3,
+        warmup_steps: 1,
+        ..TrainConfig::default()
+    }
+}
+
+/// The tiny preset with the mean head.
+fn tiny_with_mean_head() -> GlDotConfig {
+    GlDotConfig {
+        mean_head: true,
+        ..GlDotConfig::tiny()
+    }
 }
