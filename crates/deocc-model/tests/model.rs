@@ -408,10 +408,7 @@ fn the_metric_depth_weight_scales_only_the_depth_terms() {
     let data = tiny_pairs();
     let t = Trainer::new(
         TrainConfig {
-            model: GlDotConfig {
-                mean_head: true,
-                ..GlDotConfig::tiny()
-            },
+            model: tiny_with_mean_head(),
             ..TrainConfig::default()
         },
         &Device::Cpu,
