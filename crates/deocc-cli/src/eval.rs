@@ -47,6 +47,10 @@ pub struct ObjectsArgs {
     /// limits such as the quality gate's are chosen.
     #[arg(long)]
     tuning: bool,
+    /// Use the renderer's instance masks instead of the default segmenter: what the completers
+    /// score when segmentation is right.
+    #[arg(long)]
+    ground_truth_masks: bool,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
 }
@@ -62,8 +66,14 @@ fn objects(a: ObjectsArgs) -> Result<()> {
     }
     let n = a.scenes.min(preset.seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
-    let report =
-        deocc_eval::objects::object_benchmark(&chains, &opts, &preset, n, &mut || pb.inc(1))?;
+    let report = deocc_eval::objects::object_benchmark(
+        &chains,
+        &opts,
+        &preset,
+        n,
+        a.ground_truth_masks,
+        &mut || pb.inc(1),
+    )?;
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())

@@ -364,6 +364,9 @@ pub struct CompleterRow {
     /// Generated points left out as expected further off than the pipeline's
     /// `generated_max_expected_error_m`.
     pub points_uncertain_dropped: usize,
+    /// Far-side points not generated because another frame observed the object's back there
+    /// (`skip_observed_far_side`).
+    pub points_far_side_observed: usize,
     /// Completed instances, their accuracy and the gate's measurements.
     pub gate_study: Vec<GateStudyRow>,
     pub objects_per_second: f64,
@@ -420,13 +423,15 @@ pub struct SampleMetricCalibration {
 }
 
 /// `deocc eval objects`: every named chain on the same scenes of `preset` (bench-v1, or
-/// scenes of its config with other seeds) with the default segmenter, plane fill off; `tick`
-/// after each scene.
+/// scenes of its config with other seeds) with the default segmenter (or, with
+/// `ground_truth_masks`, the renderer's instance masks: what the completers do when
+/// segmentation is right), plane fill off; `tick` after each scene.
 pub fn object_benchmark(
     chains: &[(String, CompleterChain)],
     opts: &deocc_pipeline::PipelineOptions,
     preset: &deocc_synth::dataset::Preset,
     scenes: usize,
+    ground_truth_masks: bool,
     tick: &mut dyn FnMut(),
 ) -> Result<ObjectReport, EvalError> {
     use deocc_pipeline::instances::ensure_instances;
@@ -450,6 +455,7 @@ pub fn object_benchmark(
     let mut gated = vec![0usize; chains.len() + 1];
     let mut spread_dropped = vec![0usize; chains.len() + 1];
     let mut uncertain_dropped = vec![0usize; chains.len() + 1];
+    let mut far_side_observed = vec![0usize; chains.len() + 1];
     let mut study: Vec<Vec<GateStudyRow>> = vec![Vec::new(); chains.len() + 1];
     // (points, within 2 cm of a sample, within 2 cm of the triangles) of the resamples.
     let mut calibration = (0usize, 0usize, 0usize);
@@ -461,7 +467,11 @@ pub fn object_benchmark(
             .iter()
             .map(|o| (o.instance_id, o.category))
             .collect();
-        let mut scene = crate::scenes::unlabelled(rendered.scene_input());
+        let mut scene = if ground_truth_masks {
+            rendered.scene_input()
+        } else {
+            crate::scenes::unlabelled(rendered.scene_input())
+        };
         ensure_instances(&mut scene, &segmenter)?;
         let gt = &rendered.ground_truth;
         let tris = deocc_synth::render::SceneTriangles::new(&rendered.scene);
@@ -524,6 +534,7 @@ pub fn object_benchmark(
             gated[k] += out.report.completions_gated;
             spread_dropped[k] += out.report.points_spread_dropped;
             uncertain_dropped[k] += out.report.points_uncertain_dropped;
+            far_side_observed[k] += out.report.points_far_side_observed;
             for (d, f) in distance[k].iter_mut().zip(fig.model_by_distance) {
                 *d += f;
             }
@@ -653,6 +664,7 @@ pub fn object_benchmark(
                 completions_gated: gated[k],
                 points_spread_dropped: spread_dropped[k],
                 points_uncertain_dropped: uncertain_dropped[k],
+                points_far_side_observed: far_side_observed[k],
                 gate_study: study[k].clone(),
                 objects_per_second: timing[k].0 as f64 / timing[k].1.max(1e-9),
                 hidden_recall_by_object: s.iter().map(|o| o.hidden_recall as f32).collect(),
@@ -688,7 +700,11 @@ pub fn object_benchmark(
     Ok(ObjectReport {
         benchmark: preset.name.clone(),
         scenes: n,
-        segmenter: "default (ConvexitySegmenter)".into(),
+        segmenter: if ground_truth_masks {
+            "ground-truth masks".into()
+        } else {
+            "default (ConvexitySegmenter)".into()
+        },
         accuracy_measure: "exact distance to the scene's true surface (its triangles); \
                            within_2cm_of_samples: to the nearest ground-truth sample"
             .into(),

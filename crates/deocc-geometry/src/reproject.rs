@@ -28,12 +28,20 @@ pub struct SourceView<'a> {
 pub struct Reprojection {
     pub depth_m: Vec<f32>,
     pub rgb: Vec<u8>,
+    /// Per target pixel, the depth of the farthest source point whose surface faces away from
+    /// the target (0 where none lands): the object's back along that pixel's ray, observed.
+    pub back_depth_m: Vec<f32>,
 }
 
 impl Reprojection {
     /// Target pixels some point landed in.
     pub fn hits(&self) -> usize {
         self.depth_m.iter().filter(|&&d| d > 0.0).count()
+    }
+
+    /// Target pixels some point facing away from the target landed in.
+    pub fn back_hits(&self) -> usize {
+        self.back_depth_m.iter().filter(|&&d| d > 0.0).count()
     }
 }
 
@@ -69,6 +77,7 @@ pub fn reproject_views(target: &Camera, sources: &[SourceView<'_>]) -> Reproject
     let projector = target.projector();
     let eye = target.center();
     let mut splats: Vec<Splat> = Vec::new();
+    let mut back_splats: Vec<Splat> = Vec::new();
     for src in sources {
         let sk = &src.camera.intrinsics;
         let (sw, sh) = (sk.width() as i64, sk.height() as i64);
@@ -120,10 +129,9 @@ pub fn reproject_views(target: &Camera, sources: &[SourceView<'_>]) -> Reproject
             if n.dot(&(src_eye - p)) < 0.0 {
                 n = -n;
             }
-            // Facing away from the target: the target would see the object's other side here.
-            if n.dot(&(eye - p)) <= 0.0 {
-                continue;
-            }
+            // Facing away from the target: the target would see the object's other side here,
+            // so this point is the object's back as the target's ray leaves it.
+            let facing_away = n.dot(&(eye - p)) <= 0.0;
             let Some((x, y, zt)) = projector.project(&p) else {
                 continue;
             };
@@ -132,7 +140,12 @@ pub fn reproject_views(target: &Camera, sources: &[SourceView<'_>]) -> Reproject
                 (0.5 * (z / sk.fx()) * (k.fx() / zt)).clamp(MIN_SPLAT_HALF_PX, MAX_SPLAT_HALF_PX);
             let mut c = [0u8; 3];
             c.copy_from_slice(&src.rgb[3 * i as usize..3 * i as usize + 3]);
-            splats.push(Splat {
+            let out = if facing_away {
+                &mut back_splats
+            } else {
+                &mut splats
+            };
+            out.push(Splat {
                 x,
                 y,
                 z: zt,
@@ -177,7 +190,18 @@ pub fn reproject_views(target: &Camera, sources: &[SourceView<'_>]) -> Reproject
             }
         }
     }
-    Reprojection { depth_m, rgb }
+    let mut back_depth_m = vec![0f32; (w * h) as usize];
+    for s in &back_splats {
+        for (u, v) in covered(s) {
+            let t = (v * w + u) as usize;
+            back_depth_m[t] = back_depth_m[t].max(s.z);
+        }
+    }
+    Reprojection {
+        depth_m,
+        rgb,
+        back_depth_m,
+    }
 }
 
 #[cfg(test)]
@@ -267,9 +291,23 @@ mod tests {
             rgb: &rgb,
             pixels: &pixels,
         };
-        assert_eq!(reproject_views(&tgt, &[view]).hits(), 0);
-        // The same points from the source's side are kept.
+        let out = reproject_views(&tgt, &[view]);
+        assert_eq!(out.hits(), 0);
+        // It is where the target's rays leave the (thin) object: its back, at the plane's depth.
+        assert!(out.back_hits() > 200, "{} back hits", out.back_hits());
+        for (t, &d) in out.back_depth_m.iter().enumerate() {
+            if d == 0.0 {
+                continue;
+            }
+            let (u, v) = ((t % 64) as u32, (t / 64) as u32);
+            let dir = tgt.unproject_pixel(u, v, 1.0) - tgt.center();
+            let truth = -tgt.center().x / dir.x;
+            assert!((d - truth).abs() < 0.02, "pixel {t}: {d} vs {truth}");
+        }
+        // The same points from the source's side are kept, and are nobody's back.
         let front = camera([1.1, 0.0, 0.0], 64);
-        assert!(reproject_views(&front, &[view]).hits() > 200);
+        let out = reproject_views(&front, &[view]);
+        assert!(out.hits() > 200);
+        assert_eq!(out.back_hits(), 0);
     }
 }

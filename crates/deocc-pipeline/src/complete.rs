@@ -29,6 +29,9 @@ pub struct CompletedCrop {
     /// How far the completion of the mirrored crop (mirrored back) is from this one, per pixel;
     /// `None` when the mirror check is off.
     pub spread: Option<DepthSpread>,
+    /// (r*r) relative depth where the other frames observed the object's back along each
+    /// pixel's ray ([`crate::crops::Elsewhere::back`]), infinite where they did not.
+    pub seen_behind: Option<Vec<f32>>,
 }
 
 /// Per-pixel disagreement (relative depth, the crop's units) between a completion and the
@@ -75,6 +78,7 @@ pub fn complete_instances(
     opts: &PipelineOptions,
 ) -> Result<(Vec<CompletedCrop>, Vec<DeclinedCrop>), PipelineError> {
     let mut jobs: Vec<(usize, CropWindow, CropCondition)> = Vec::new();
+    let mut behind: Vec<Option<Vec<f32>>> = Vec::new();
     let mut declined = Vec::new();
     let pixels = if opts.use_other_views && scene.frames.len() > 1 {
         instance_pixels(&scene.frames)
@@ -98,11 +102,17 @@ pub fn complete_instances(
             match routed {
                 Ok((k, cond)) => {
                     let Some(window) = built.take() else { continue };
-                    let cond = match seen_elsewhere(&scene.frames, &pixels, &window) {
+                    let elsewhere = if pixels.is_empty() {
+                        Default::default()
+                    } else {
+                        seen_elsewhere(&scene.frames, &pixels, &window)
+                    };
+                    let cond = match elsewhere.front {
                         Some(seen) => cond.with_seen_elsewhere(seen),
                         None => cond,
                     };
                     jobs.push((k, window, cond));
+                    behind.push(elsewhere.back);
                 }
                 Err(reasons) => {
                     // Not even a crop at any resolution: too little of it is visible.
@@ -196,15 +206,19 @@ pub fn complete_instances(
         .into_iter()
         .zip(completions)
         .zip(spreads)
-        .filter_map(|(((completer, window, condition), completion), spread)| {
-            Some(CompletedCrop {
-                window,
-                condition,
-                completion: completion?,
-                completer,
-                spread,
-            })
-        })
+        .zip(behind)
+        .filter_map(
+            |((((completer, window, condition), completion), spread), seen_behind)| {
+                Some(CompletedCrop {
+                    window,
+                    condition,
+                    completion: completion?,
+                    completer,
+                    spread,
+                    seen_behind,
+                })
+            },
+        )
         .collect();
     Ok((completed, declined))
 }

@@ -152,14 +152,24 @@ pub fn instance_pixels(frames: &[Frame]) -> Vec<BTreeMap<u16, Vec<u32>>> {
         .collect()
 }
 
+/// What the other frames observed of a window's instance, reprojected into its crop in relative
+/// depth ([`seen_elsewhere`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Elsewhere {
+    /// The surfaces facing the crop's camera (the model's condition); `None` when no point lands.
+    pub front: Option<SeenElsewhere>,
+    /// (r*r) the farthest surface facing away from the crop's camera: where the object's back
+    /// along the pixel's ray was observed, infinite where none; `None` when no point lands.
+    pub back: Option<Vec<f32>>,
+}
+
 /// What the other frames observed of the window's instance, reprojected into its crop
-/// (`deocc_geometry::reproject`) in relative depth; `None` when no other frame's point lands
-/// in it. `pixels` is [`instance_pixels`] of `frames`.
+/// (`deocc_geometry::reproject`) in relative depth. `pixels` is [`instance_pixels`] of `frames`.
 pub fn seen_elsewhere(
     frames: &[Frame],
     pixels: &[BTreeMap<u16, Vec<u32>>],
     window: &CropWindow,
-) -> Option<SeenElsewhere> {
+) -> Elsewhere {
     let sources: Vec<SourceView<'_>> = frames
         .iter()
         .zip(pixels)
@@ -175,23 +185,29 @@ pub fn seen_elsewhere(
         })
         .collect();
     if sources.is_empty() {
-        return None;
+        return Elsewhere::default();
     }
-    let camera = frames[window.view]
-        .camera
-        .crop(window.x0, window.y0, window.side, window.resolution as u32)
-        .ok()?;
+    let Ok(camera) = frames[window.view].camera.crop(
+        window.x0,
+        window.y0,
+        window.side,
+        window.resolution as u32,
+    ) else {
+        return Elsewhere::default();
+    };
     let seen = reproject_views(&camera, &sources);
-    if seen.hits() == 0 {
-        return None;
-    }
     let (m, s) = (window.median_depth_m, window.metric_scale_m);
-    Some(SeenElsewhere {
-        rgb: seen.rgb,
-        depth: seen
-            .depth_m
+    let relative = |depth: &[f32]| -> Vec<f32> {
+        depth
             .iter()
             .map(|&d| if d > 0.0 { (d - m) / s } else { f32::INFINITY })
-            .collect(),
-    })
+            .collect()
+    };
+    Elsewhere {
+        front: (seen.hits() > 0).then(|| SeenElsewhere {
+            rgb: seen.rgb.clone(),
+            depth: relative(&seen.depth_m),
+        }),
+        back: (seen.back_hits() > 0).then(|| relative(&seen.back_depth_m)),
+    }
 }

@@ -10,7 +10,9 @@
 //! point more than a limit behind its near side. With the error gate, neither is a point the
 //! completer expects further off than a limit; those pixels are returned
 //! ([`fuse_completion_detailed`]) so that another completer may fill exactly them
-//! ([`FuseOptions::only`]).
+//! ([`FuseOptions::only`]). Where another frame observed the object's back along a pixel's ray
+//! ([`FuseOptions::seen_behind`]), no far-side point is generated: the observation is in the
+//! cloud already.
 
 use deocc_completion::{CropCompletion, Provenance};
 use deocc_geometry::robust::{huber_affine_fit, HuberOptions};
@@ -54,10 +56,21 @@ pub struct FuseOptions<'a> {
     /// Thickness cap (metres; 0 = off): a far-side point more than this behind its near side
     /// is not generated.
     pub max_thickness_m: f32,
+    /// Thickness cap relative to the silhouette (0 = off): a far-side point more than this
+    /// many times the width of its amodal row run (the contiguous amodal pixels of its image
+    /// row, in metres at the crop's scale) behind its near side is not generated
+    /// ([`row_run_widths_m`]). A leg or a post 3 cm wide is not 10 cm deep.
+    pub max_thickness_per_width: f32,
     /// (r*r) relative depth where other frames observed the object (the crop's
     /// `seen_elsewhere`, infinite elsewhere): the near side there is their observation, already in
     /// the cloud, so no near-side point is generated; the far side is placed behind it.
     pub seen_elsewhere: Option<&'a [f32]>,
+    /// (r*r) relative depth where other frames observed the object's back along the pixel's ray
+    /// (the crop's [`crate::crops::Elsewhere::back`], infinite elsewhere): where it lies behind
+    /// the near side, the far side is observed, so none is generated (counted in the record's
+    /// `far_side_observed`). (This view cannot see past it: a pixel it sees beyond the near
+    /// side generates nothing.)
+    pub seen_behind: Option<&'a [f32]>,
     /// Revealed pixels (neither visible nor seen elsewhere) whose mask probability is below
     /// this generate no point (0 = off).
     pub min_revealed_confidence: f32,
@@ -97,6 +110,31 @@ impl UncertainPixels {
             .filter(|(&a, &b)| a || b)
             .count()
     }
+}
+
+/// Each pixel's amodal row run width in metres (an `r x r` mask whose crop is `crop_m` wide):
+/// the number of contiguous `mask` pixels in its row that include it, times the pixel size;
+/// infinite outside the mask.
+pub fn row_run_widths_m(mask: &[bool], r: usize, crop_m: f32) -> Vec<f32> {
+    let px_m = crop_m / r as f32;
+    let mut out = vec![f32::INFINITY; r * r];
+    for v in 0..r {
+        let row = &mask[v * r..(v + 1) * r];
+        let mut u = 0;
+        while u < r {
+            if !row[u] {
+                u += 1;
+                continue;
+            }
+            let start = u;
+            while u < r && row[u] {
+                u += 1;
+            }
+            let w = (u - start) as f32 * px_m;
+            out[v * r + start..v * r + u].fill(w);
+        }
+    }
+    out
 }
 
 /// The median of `values` over the `mask` pixels of each mask pixel's (2 radius + 1)^2 window
@@ -184,6 +222,7 @@ pub fn fuse_completion_detailed(
         gated: false,
         spread_dropped: 0,
         uncertain_dropped: 0,
+        far_side_observed: 0,
         accepted: false,
         reason: String::new(),
     };
@@ -240,7 +279,14 @@ pub fn fuse_completion_detailed(
     } else {
         f32::INFINITY
     };
+    let run_cap: Option<Vec<f32>> = (opts.max_thickness_per_width > 0.0).then(|| {
+        row_run_widths_m(&completion.amodal, r, window.metric_scale_m)
+            .into_iter()
+            .map(|w| w * opts.max_thickness_per_width)
+            .collect()
+    });
     let mut spread_dropped = 0;
+    let mut far_side_observed = 0;
     let mut positions = Vec::new();
     let mut colors = Vec::new();
     let mut confidence = Vec::new();
@@ -302,11 +348,22 @@ pub fn fuse_completion_detailed(
             }
             z
         };
-        // Far side (the object's back, which no view shows), behind the near side.
+        // Far side (the object's back), behind the near side: another frame may have seen it.
+        let observed_back = opts
+            .seen_behind
+            .and_then(|d| d.get(k).copied())
+            .filter(|d| d.is_finite())
+            .map(|rel| window.median_depth_m + rel * window.metric_scale_m)
+            .filter(|&b| b > front + MIN_THICKNESS_M);
+        if observed_back.is_some() {
+            far_side_observed += 1;
+            continue;
+        }
         let back = fit.apply(back_depth[k] as f64) as f32;
         if back.is_finite()
             && back > front + MIN_THICKNESS_M
             && back - front <= max_thick
+            && run_cap.as_ref().is_none_or(|c| back - front <= c[k])
             && !(obs > 0.0 && obs > back + FREE_SPACE_MARGIN_M)
         {
             if doubtful(k, true) {
@@ -321,6 +378,7 @@ pub fn fuse_completion_detailed(
     }
     record.spread_dropped = spread_dropped;
     record.uncertain_dropped = uncertain_dropped;
+    record.far_side_observed = far_side_observed;
     record.new_points = positions.len();
     record.accepted = true;
     record.reason = "ok".into();
@@ -476,6 +534,124 @@ mod seen_elsewhere_tests {
         assert_eq!(at(&z(&with), generated_near), 7);
         // The far side stays where it was (5.5 cm behind the generated near side).
         assert_eq!(at(&z(&with), generated_near + 0.055), 8);
+    }
+
+    /// Where another frame observed the object's back behind the near side, no far-side point
+    /// is generated (counted); an observation in front of the near side is no back, and the far
+    /// side stays.
+    #[test]
+    fn no_far_side_point_where_another_frame_saw_the_back() {
+        let setup = setup();
+        let (window, visible, completion, frame) = &setup;
+        let fuse = |behind: Option<&[f32]>| {
+            fuse_completion(
+                window,
+                visible,
+                completion,
+                frame,
+                "t",
+                Provenance::Model,
+                &FuseOptions {
+                    seen_behind: behind,
+                    ..Default::default()
+                },
+            )
+        };
+        let (alone, rec) = fuse(None);
+        assert_eq!(alone.len(), 32 + 64);
+        assert_eq!(rec.far_side_observed, 0);
+        let mut behind = vec![f32::INFINITY; 64];
+        // Visible pixel (row 2, column 1): its back seen 4 cm behind its observed front.
+        let visible_px = 2 * 8 + 1;
+        behind[visible_px] = completion.depth[visible_px] + 0.04;
+        // Hidden pixel (row 5, column 6): its back seen 3 cm behind the generated near side.
+        let hidden_px = 5 * 8 + 6;
+        behind[hidden_px] = completion.depth[hidden_px] + 0.03;
+        // Hidden pixel (row 6, column 6): an "observation" in front of the near side is no back.
+        behind[6 * 8 + 6] = completion.depth[6 * 8 + 6] - 0.03;
+        let (with, rec) = fuse(Some(&behind));
+        assert_eq!(rec.far_side_observed, 2);
+        assert_eq!(with.len(), alone.len() - 2);
+        // The two far sides are gone (5.5 cm behind their near sides), the near side stays.
+        let has = |c: &deocc_geometry::PointCloud, z: f32| {
+            c.positions.iter().any(|q| (q.z - z).abs() < 1e-4)
+        };
+        let near_hidden = 1.0 + completion.depth[hidden_px];
+        assert!(has(&with, near_hidden));
+        let count = |c: &deocc_geometry::PointCloud, z: f32| {
+            c.positions
+                .iter()
+                .filter(|q| (q.z - z).abs() < 1e-4)
+                .count()
+        };
+        // Column 6's far sides sit at 1.115 m in 8 rows; one is observed.
+        assert_eq!(count(&alone, near_hidden + 0.055), 8);
+        assert_eq!(count(&with, near_hidden + 0.055), 7);
+    }
+
+    /// The silhouette-relative cap drops the far side of a narrow row run (a leg two pixels
+    /// wide, 0.25 m here: a cap of 2.5 cm at 0.1 under its 5.5 cm back) and keeps the wide
+    /// rows' (1 m: a 10 cm cap); 0 is off.
+    #[test]
+    fn far_sides_deeper_than_the_row_run_allows_are_left_out() {
+        let (window, visible, mut completion, frame) = setup();
+        // Row 7: only columns 0 and 1 belong to the object.
+        for u in 2..8 {
+            completion.amodal[7 * 8 + u] = false;
+        }
+        let setup = (window, visible, completion, frame);
+        let fuse = |ratio: f32| {
+            fuse_model(
+                &setup,
+                &FuseOptions {
+                    max_thickness_per_width: ratio,
+                    ..Default::default()
+                },
+            )
+        };
+        let off = fuse(0.0);
+        // 7 full rows (4 visible: far side; 4 hidden: near and far) and row 7's 2 visible.
+        assert_eq!(off.len(), 7 * 12 + 2);
+        let capped = fuse(0.1);
+        assert_eq!(capped.len(), off.len() - 2);
+        // Row 7 (its pixel centres at y = 0.4375 z) keeps no point.
+        let bottom =
+            |c: &deocc_geometry::PointCloud| c.positions.iter().filter(|p| p.y > 0.4 * p.z).count();
+        assert_eq!(bottom(&off), 2);
+        assert_eq!(bottom(&capped), 0);
+        // A ratio under 5.5 cm a metre leaves out every far side.
+        assert_eq!(fuse(0.05).len(), 7 * 4);
+    }
+
+    /// The row runs: widths of contiguous mask pixels, infinite outside the mask.
+    #[test]
+    fn row_runs_are_the_contiguous_mask_widths() {
+        let mask = [
+            true, true, false, true, //
+            false, false, false, false, //
+            true, true, true, true, //
+            false, true, false, false,
+        ];
+        let w = super::row_run_widths_m(&mask, 4, 2.0);
+        let expect = [
+            1.0,
+            1.0,
+            f32::INFINITY,
+            0.5, //
+            f32::INFINITY,
+            f32::INFINITY,
+            f32::INFINITY,
+            f32::INFINITY, //
+            2.0,
+            2.0,
+            2.0,
+            2.0, //
+            f32::INFINITY,
+            0.5,
+            f32::INFINITY,
+            f32::INFINITY,
+        ];
+        assert_eq!(w, expect);
     }
 
     /// A revealed pixel below the confidence floor generates neither side; visible pixels keep

@@ -256,7 +256,15 @@ pub fn run_observed(
                     Provenance::Rules => opts.rules_max_thickness_m,
                     _ => 0.0,
                 },
+                max_thickness_per_width: match link.provenance() {
+                    Provenance::Model => opts.generated_max_thickness_per_width,
+                    _ => 0.0,
+                },
                 seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
+                seen_behind: c
+                    .seen_behind
+                    .as_deref()
+                    .filter(|_| opts.skip_observed_far_side),
                 min_revealed_confidence: match link.provenance() {
                     Provenance::Model => opts.generated_min_revealed_confidence,
                     _ => 0.0,
@@ -282,6 +290,10 @@ pub fn run_observed(
                     &fuse::FuseOptions {
                         max_thickness_m: opts.rules_max_thickness_m,
                         seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
+                        seen_behind: c
+                            .seen_behind
+                            .as_deref()
+                            .filter(|_| opts.skip_observed_far_side),
                         only: Some(&left_out),
                         ..Default::default()
                     },
@@ -330,6 +342,7 @@ pub fn run_observed(
             gated: false,
             spread_dropped: 0,
             uncertain_dropped: 0,
+            far_side_observed: 0,
             accepted: false,
             reason: format!("declined: {}", d.reasons.join("; ")),
         });
@@ -530,6 +543,7 @@ fn make_report(
     let completions_gated = records.iter().filter(|r| r.gated).count();
     let points_spread_dropped = records.iter().map(|r| r.spread_dropped).sum();
     let points_uncertain_dropped = records.iter().map(|r| r.uncertain_dropped).sum();
+    let points_far_side_observed = records.iter().map(|r| r.far_side_observed).sum();
     RunReport {
         frames: scene.frames.len(),
         options: opts.clone(),
@@ -549,6 +563,7 @@ fn make_report(
         completions_gated,
         points_spread_dropped,
         points_uncertain_dropped,
+        points_far_side_observed,
         timings,
         poses: if registration.is_empty() {
             "given"

@@ -105,6 +105,11 @@ pub struct PipelineOptions {
     /// deep far sides are mostly furniture rays that leave through a far leg or edge, and most
     /// of them miss every true surface (docs/decisions.md).
     pub generated_max_thickness_m: f32,
+    /// Thickness cap of a learned completer's far side relative to the silhouette (0 = off): a
+    /// far-side point more than this many times the width of its amodal row run (in metres)
+    /// behind its near side is not generated ([`GENERATED_MAX_THICKNESS_PER_WIDTH`]): the
+    /// model gives thin legs, posts and fragments deep backs that lie in empty space.
+    pub generated_max_thickness_per_width: f32,
     /// The same cap (metres; 0 = off) on the rules completer's far side, its near side
     /// mirrored ([`RULES_MAX_THICKNESS_M`]): a mirror of a chair's or a table's near side puts
     /// most of its points in empty space.
@@ -124,6 +129,11 @@ pub struct PipelineOptions {
     /// instead (its near and far side there, as rules points), so that the model abstains where
     /// it expects to be off rather than leaving a hole (off by default; docs/decisions.md).
     pub generated_uncertain_to_rules: bool,
+    /// No far-side point is generated where another frame observed the object's back along the
+    /// pixel's ray (its surface there faces away from this view; [`crate::crops::Elsewhere`]):
+    /// that part of the back is in the cloud as an observation, and a generated copy of it can
+    /// only be as good or worse ([`SKIP_OBSERVED_FAR_SIDE`]).
+    pub skip_observed_far_side: bool,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -137,11 +147,21 @@ pub struct PipelineOptions {
 pub const GATE_MIN_MEAN_CONFIDENCE: f32 = 0.0;
 pub const GATE_MAX_SEEN_THROUGH_FRACTION: f32 = 1.0;
 
+/// [`PipelineOptions::skip_observed_far_side`]'s default.
+pub const SKIP_OBSERVED_FAR_SIDE: bool = false;
+
 /// The thickness cap's default ([`PipelineOptions::generated_max_thickness_m`]), chosen on 20
 /// bench-v1-like tuning scenes (`deocc eval objects --tuning --scenes 20`): GL-DoT's points
 /// within 2 cm of a true surface and the shipped chain's hidden recall, off 55.3% / 0.499,
 /// 0.15 m 59.8% / 0.497, 0.10 m 64.6% / 0.490, 0.08 m 66.5% / 0.480, 0.05 m 67.2% / 0.439.
 pub const GENERATED_MAX_THICKNESS_M: f32 = 0.10;
+
+/// The silhouette-relative thickness cap's default
+/// ([`PipelineOptions::generated_max_thickness_per_width`]), chosen on 20 bench-v1-like tuning
+/// scenes (`deocc eval objects --tuning --scenes 20 --options F`): GL-DoT's points, their share
+/// within 2 cm of a true surface and the shipped chain's hidden recall, off 16.4k 77.5% 0.490,
+/// 1.5 15.6k 78.5% 0.488, 1.0 14.0k 79.7% 0.487, 0.75 11.9k 79.0% 0.481 (docs/decisions.md).
+pub const GENERATED_MAX_THICKNESS_PER_WIDTH: f32 = 1.0;
 
 /// The outside-the-room carve's default margin ([`PipelineOptions::carve_outside_bounding_planes_m`]),
 /// measured on 20 bench-v1-like tuning scenes (`deocc eval objects --tuning --scenes 20`): GL-DoT's
@@ -204,10 +224,12 @@ impl Default for PipelineOptions {
             generated_depth_median_px: 0,
             generated_depth_median_max_crop_m: 0.0,
             generated_max_thickness_m: GENERATED_MAX_THICKNESS_M,
+            generated_max_thickness_per_width: GENERATED_MAX_THICKNESS_PER_WIDTH,
             rules_max_thickness_m: RULES_MAX_THICKNESS_M,
             generated_min_revealed_confidence: GENERATED_MIN_REVEALED_CONFIDENCE,
             generated_max_expected_error_m: GENERATED_MAX_EXPECTED_ERROR_M,
             generated_uncertain_to_rules: false,
+            skip_observed_far_side: SKIP_OBSERVED_FAR_SIDE,
         }
     }
 }
@@ -343,6 +365,13 @@ impl PipelineOptions {
             if !(0.0..=10.0).contains(&v) {
                 return Err(bad(field, format!("{v} m is outside [0, 10] m (0 = off)")));
             }
+        }
+        let w = self.generated_max_thickness_per_width;
+        if !(0.0..=100.0).contains(&w) {
+            return Err(bad(
+                "generated_max_thickness_per_width",
+                format!("{w} is outside [0, 100] (0 = off)"),
+            ));
         }
         if self.generated_depth_median_px > 16 {
             return Err(bad(

@@ -46,6 +46,9 @@ pub struct CompletionRecord {
     /// Points not generated because the completer expected them further off than
     /// [`PipelineOptions::generated_max_expected_error_m`] (0 when off).
     pub uncertain_dropped: usize,
+    /// Far-side points not generated because another frame observed the object's back along
+    /// their pixel's ray ([`PipelineOptions::skip_observed_far_side`]).
+    pub far_side_observed: usize,
     pub accepted: bool,
     pub reason: String,
 }
@@ -108,6 +111,9 @@ pub struct RunReport {
     /// Generated points left out as expected too far off
     /// ([`PipelineOptions::generated_max_expected_error_m`]).
     pub points_uncertain_dropped: usize,
+    /// Far-side points not generated because another frame observed the object's back there
+    /// ([`PipelineOptions::skip_observed_far_side`]).
+    pub points_far_side_observed: usize,
     pub timings: StageTimings,
     /// "given" (poses from cameras.json) or "icp" (pose-free input registered frame to frame).
     pub poses: &'static str,
