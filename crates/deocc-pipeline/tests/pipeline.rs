@@ -1178,17 +1178,11 @@ fn the_rules_complete_what_the_model_expects_to_be_off() {
         .filter(|c| c.completer == "stub" && c.accepted)
         .count();
     assert!(fallback_records > 0 && fallback_records <= model_records);
-    // A fallback without a limit would do nothing: refused, naming the option.
-    let e = PipelineOptions {
-        generated_uncertain_to_rules: true,
-        ..Default::default()
-    }
-    .validate()
-    .unwrap_err();
-    assert!(
-        e.to_string().contains("generated_uncertain_to_rules"),
-        "{e}"
-    );
+    // Without a limit nothing is left out, and the fallback has nothing to do.
+    let unlimited = run(Some(10.0), 0.0, true);
+    assert_eq!(unlimited.points_model, plain.points_model);
+    assert_eq!(unlimited.points_rules, 0);
+    assert_eq!(unlimited.points_uncertain_dropped, 0);
     // Sure everywhere: the fallback has nothing to do.
     let sure = run(Some(0.0), 0.01, true);
     assert_eq!(sure.points_model, plain.points_model);
