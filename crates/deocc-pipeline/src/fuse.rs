@@ -482,11 +482,11 @@ mod seen_elsewhere_tests {
         (window, visible, completion, frame)
     }
 
-    /// The setup's completion fused as a model's.
-    fn fuse_model(
+    /// The setup's completion fused as a model's, and its record.
+    fn fuse_model_recorded(
         (window, visible, completion, frame): &(CropWindow, Vec<bool>, CropCompletion, Frame),
         opts: &FuseOptions<'_>,
-    ) -> deocc_geometry::PointCloud {
+    ) -> (deocc_geometry::PointCloud, crate::report::CompletionRecord) {
         fuse_completion(
             window,
             visible,
@@ -496,7 +496,24 @@ mod seen_elsewhere_tests {
             Provenance::Model,
             opts,
         )
-        .0
+    }
+
+    /// The setup's completion fused as a model's.
+    fn fuse_model(
+        setup: &(CropWindow, Vec<bool>, CropCompletion, Frame),
+        opts: &FuseOptions<'_>,
+    ) -> deocc_geometry::PointCloud {
+        fuse_model_recorded(setup, opts).0
+    }
+
+    /// The setup's completion fused as a model's, with the default options changed by `set`.
+    fn fuse_model_with(
+        setup: &(CropWindow, Vec<bool>, CropCompletion, Frame),
+        set: impl Fn(&mut FuseOptions<'static>),
+    ) -> deocc_geometry::PointCloud {
+        let mut opts = FuseOptions::default();
+        set(&mut opts);
+        fuse_model(setup, &opts)
     }
 
     /// Where another frame saw the object, fusion places no near-side point (that frame's point
@@ -542,15 +559,10 @@ mod seen_elsewhere_tests {
     #[test]
     fn no_far_side_point_where_another_frame_saw_the_back() {
         let setup = setup();
-        let (window, visible, completion, frame) = &setup;
+        let completion = &setup.2;
         let fuse = |behind: Option<&[f32]>| {
-            fuse_completion(
-                window,
-                visible,
-                completion,
-                frame,
-                "t",
-                Provenance::Model,
+            fuse_model_recorded(
+                &setup,
                 &FuseOptions {
                     seen_behind: behind,
                     ..Default::default()
@@ -600,15 +612,7 @@ mod seen_elsewhere_tests {
             completion.amodal[7 * 8 + u] = false;
         }
         let setup = (window, visible, completion, frame);
-        let fuse = |ratio: f32| {
-            fuse_model(
-                &setup,
-                &FuseOptions {
-                    max_thickness_per_width: ratio,
-                    ..Default::default()
-                },
-            )
-        };
+        let fuse = |ratio: f32| fuse_model_with(&setup, |o| o.max_thickness_per_width = ratio);
         let off = fuse(0.0);
         // 7 full rows (4 visible: far side; 4 hidden: near and far) and row 7's 2 visible.
         assert_eq!(off.len(), 7 * 12 + 2);
@@ -666,15 +670,7 @@ mod seen_elsewhere_tests {
             }
         }
         let setup = (window, visible, completion, frame);
-        let fuse = |floor: f32| {
-            fuse_model(
-                &setup,
-                &FuseOptions {
-                    min_revealed_confidence: floor,
-                    ..Default::default()
-                },
-            )
-        };
+        let fuse = |floor: f32| fuse_model_with(&setup, |o| o.min_revealed_confidence = floor);
         let all = fuse(0.0);
         let strict = fuse(0.9);
         assert_eq!(all.len(), 32 + 64);
