@@ -30,6 +30,7 @@ pub struct Reprojection {
     pub rgb: Vec<u8>,
     /// Per target pixel, the depth of the farthest source point whose surface faces away from
     /// the target (0 where none lands): the object's back along that pixel's ray, observed.
+    /// Empty unless asked for ([`reproject_views_and_backs`]).
     pub back_depth_m: Vec<f32>,
 }
 
@@ -70,6 +71,16 @@ const NORMAL_STEP: i64 = 2;
 /// [`MIN_SPLAT_HALF_PX`]); of the points on a pixel's nearest surface, the one nearest its
 /// centre gives its colour and depth.
 pub fn reproject_views(target: &Camera, sources: &[SourceView<'_>]) -> Reprojection {
+    reproject(target, sources, false)
+}
+
+/// [`reproject_views`], and the surfaces that face away from the target as
+/// [`Reprojection::back_depth_m`] (where the target's rays leave the object).
+pub fn reproject_views_and_backs(target: &Camera, sources: &[SourceView<'_>]) -> Reprojection {
+    reproject(target, sources, true)
+}
+
+fn reproject(target: &Camera, sources: &[SourceView<'_>], backs: bool) -> Reprojection {
     let k = &target.intrinsics;
     let (w, h) = (k.width() as i64, k.height() as i64);
     let mut depth_m = vec![0f32; (w * h) as usize];
@@ -132,6 +143,9 @@ pub fn reproject_views(target: &Camera, sources: &[SourceView<'_>]) -> Reproject
             // Facing away from the target: the target would see the object's other side here,
             // so this point is the object's back as the target's ray leaves it.
             let facing_away = n.dot(&(eye - p)) <= 0.0;
+            if facing_away && !backs {
+                continue;
+            }
             let Some((x, y, zt)) = projector.project(&p) else {
                 continue;
             };
@@ -190,7 +204,7 @@ pub fn reproject_views(target: &Camera, sources: &[SourceView<'_>]) -> Reproject
             }
         }
     }
-    let mut back_depth_m = vec![0f32; (w * h) as usize];
+    let mut back_depth_m = vec![0f32; if backs { (w * h) as usize } else { 0 }];
     for s in &back_splats {
         for (u, v) in covered(s) {
             let t = (v * w + u) as usize;
@@ -291,7 +305,11 @@ mod tests {
             rgb: &rgb,
             pixels: &pixels,
         };
-        let out = reproject_views(&tgt, &[view]);
+        assert_eq!(
+            reproject_views(&tgt, &[view]).back_depth_m,
+            Vec::<f32>::new()
+        );
+        let out = reproject_views_and_backs(&tgt, &[view]);
         assert_eq!(out.hits(), 0);
         // It is where the target's rays leave the (thin) object: its back, at the plane's depth.
         assert!(out.back_hits() > 200, "{} back hits", out.back_hits());
@@ -306,7 +324,7 @@ mod tests {
         }
         // The same points from the source's side are kept, and are nobody's back.
         let front = camera([1.1, 0.0, 0.0], 64);
-        let out = reproject_views(&front, &[view]);
+        let out = reproject_views_and_backs(&front, &[view]);
         assert!(out.hits() > 200);
         assert_eq!(out.back_hits(), 0);
     }

@@ -102,11 +102,12 @@ pub fn complete_instances(
             match routed {
                 Ok((k, cond)) => {
                     let Some(window) = built.take() else { continue };
-                    let elsewhere = if pixels.is_empty() {
-                        Default::default()
-                    } else {
-                        seen_elsewhere(&scene.frames, &pixels, &window)
-                    };
+                    let elsewhere = seen_elsewhere(
+                        &scene.frames,
+                        &pixels,
+                        &window,
+                        opts.skip_observed_far_side,
+                    );
                     let cond = match elsewhere.front {
                         Some(seen) => cond.with_seen_elsewhere(seen),
                         None => cond,

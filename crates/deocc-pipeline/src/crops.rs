@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 
 use deocc_completion::{CropCondition, SeenElsewhere};
-use deocc_geometry::reproject::{reproject_views, SourceView};
+use deocc_geometry::reproject::{reproject_views, reproject_views_and_backs, SourceView};
 use deocc_io::scene::Frame;
 
 use crate::stats::InstanceStats;
@@ -164,11 +164,13 @@ pub struct Elsewhere {
 }
 
 /// What the other frames observed of the window's instance, reprojected into its crop
-/// (`deocc_geometry::reproject`) in relative depth. `pixels` is [`instance_pixels`] of `frames`.
+/// (`deocc_geometry::reproject`) in relative depth; the backs only when `backs` is set.
+/// `pixels` is [`instance_pixels`] of `frames`.
 pub fn seen_elsewhere(
     frames: &[Frame],
     pixels: &[BTreeMap<u16, Vec<u32>>],
     window: &CropWindow,
+    backs: bool,
 ) -> Elsewhere {
     let sources: Vec<SourceView<'_>> = frames
         .iter()
@@ -195,7 +197,11 @@ pub fn seen_elsewhere(
     ) else {
         return Elsewhere::default();
     };
-    let seen = reproject_views(&camera, &sources);
+    let seen = if backs {
+        reproject_views_and_backs(&camera, &sources)
+    } else {
+        reproject_views(&camera, &sources)
+    };
     let (m, s) = (window.median_depth_m, window.metric_scale_m);
     let relative = |depth: &[f32]| -> Vec<f32> {
         depth
@@ -203,11 +209,10 @@ pub fn seen_elsewhere(
             .map(|&d| if d > 0.0 { (d - m) / s } else { f32::INFINITY })
             .collect()
     };
-    Elsewhere {
-        front: (seen.hits() > 0).then(|| SeenElsewhere {
-            rgb: seen.rgb.clone(),
-            depth: relative(&seen.depth_m),
-        }),
-        back: (seen.back_hits() > 0).then(|| relative(&seen.back_depth_m)),
-    }
+    let back = (seen.back_hits() > 0).then(|| relative(&seen.back_depth_m));
+    let front = (seen.hits() > 0).then(|| SeenElsewhere {
+        depth: relative(&seen.depth_m),
+        rgb: seen.rgb,
+    });
+    Elsewhere { front, back }
 }

@@ -261,10 +261,8 @@ pub fn run_observed(
                     _ => 0.0,
                 },
                 seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
-                seen_behind: c
-                    .seen_behind
-                    .as_deref()
-                    .filter(|_| opts.skip_observed_far_side),
+                // Only made when `skip_observed_far_side` is set (complete.rs).
+                seen_behind: c.seen_behind.as_deref(),
                 min_revealed_confidence: match link.provenance() {
                     Provenance::Model => opts.generated_min_revealed_confidence,
                     _ => 0.0,
@@ -290,10 +288,7 @@ pub fn run_observed(
                     &fuse::FuseOptions {
                         max_thickness_m: opts.rules_max_thickness_m,
                         seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
-                        seen_behind: c
-                            .seen_behind
-                            .as_deref()
-                            .filter(|_| opts.skip_observed_far_side),
+                        seen_behind: c.seen_behind.as_deref(),
                         only: Some(&left_out),
                         ..Default::default()
                     },

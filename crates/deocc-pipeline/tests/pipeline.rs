@@ -1079,7 +1079,7 @@ fn a_frame_reprojected_into_its_own_crop_lands_on_its_visible_pixels() {
     let twice = vec![frame.clone(), frame.clone()];
     let mut again = window.clone();
     again.view = 1; // the same camera as "another" frame
-    let elsewhere = seen_elsewhere(&twice, &instance_pixels(&twice), &again);
+    let elsewhere = seen_elsewhere(&twice, &instance_pixels(&twice), &again, true);
     // Its own surface faces its own camera: nothing of it is the object's back.
     assert!(elsewhere.back.is_none(), "a back seen from the front");
     let seen = elsewhere.front.expect("lands");
@@ -1109,7 +1109,7 @@ fn a_frame_reprojected_into_its_own_crop_lands_on_its_visible_pixels() {
 
     // The scene's other frames see parts of it this crop does not.
     let pixels = instance_pixels(&scene.frames);
-    if let Some(other) = seen_elsewhere(&scene.frames, &pixels, &window).front {
+    if let Some(other) = seen_elsewhere(&scene.frames, &pixels, &window, false).front {
         let with = cond.clone().with_seen_elsewhere(other);
         let added = with
             .seen_elsewhere
