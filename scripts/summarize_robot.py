@@ -4,7 +4,7 @@ import json
 import sys
 
 r = json.load(open(sys.argv[1]))
-ci = lambda e: "%.3f [%.3f, %.3f]" % (e["mean"], e["ci95"][0], e["ci95"][1])
+ci = lambda e: "-" if e["mean"] is None else "%.3f [%.3f, %.3f]" % (e["mean"], e["ci95"][0], e["ci95"][1])
 if r["benchmark"].startswith("pickup"):
     print(f"{r['benchmark']}: {r['scenes']} scenes, {r['heavy_scenes']} heavy (target < 50% visible)")
     for row in r["rows"]:

@@ -31,8 +31,9 @@ pub struct SceneArgs {
     observed: bool,
 }
 
-/// The scene's completed cloud (or observed with `--observed`) and its first camera.
-fn completed(a: &SceneArgs) -> Result<(PointCloud, Camera)> {
+/// The scene's completed cloud (or observed with `--observed`), its first camera and how many
+/// frames it has.
+fn completed(a: &SceneArgs) -> Result<(PointCloud, Camera, usize)> {
     let mut scene = read_scene(&a.scene)?;
     let registration = register_unposed(&mut scene)?;
     ensure_instances(&mut scene, &ConvexitySegmenter::default())?;
@@ -43,6 +44,7 @@ fn completed(a: &SceneArgs) -> Result<(PointCloud, Camera)> {
     };
     let out = deocc_pipeline::run(&scene, &chain, &PipelineOptions::default(), &registration)?;
     let camera = scene.frames[0].camera;
+    let frames = scene.frames.len();
     Ok((
         if a.observed {
             out.observed
@@ -50,6 +52,7 @@ fn completed(a: &SceneArgs) -> Result<(PointCloud, Camera)> {
             out.completed
         },
         camera,
+        frames,
     ))
 }
 
@@ -114,7 +117,7 @@ struct GraspAnswer<'a> {
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let options = grasp_options(a.options.as_deref())?;
-    let (cloud, camera) = completed(&a.scene)?;
+    let (cloud, camera, _) = completed(&a.scene)?;
     let ids = cloud.instance.clone().unwrap_or_default();
     let target: Vec<_> = cloud
         .positions
@@ -224,12 +227,14 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         (Some(Unseen::Occupied), _) => UnseenSpace::Occupied,
         (Some(Unseen::AsPoints), _) | (None, false) => UnseenSpace::AsPoints,
     };
-    let (cloud, camera) = completed(&a.scene)?;
+    let (cloud, camera, frames) = completed(&a.scene)?;
+    let robot = nalgebra::Point3::from(camera.world_from_camera.translation.vector);
     let placer = GridPlacer {
         options: options.clone(),
         unseen,
+        // One frame: the sight lines from its camera tell empty space past a table's edge.
+        eye: (frames == 1).then_some(robot),
     };
-    let robot = nalgebra::Point3::from(camera.world_from_camera.translation.vector);
     let (maps, best) = placer
         .plan(&cloud.positions, &robot)
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.scene.display()))?;
@@ -323,6 +328,7 @@ pub fn recording_annotations(
     let placer = GridPlacer {
         options,
         unseen: UnseenSpace::AsPoints,
+        eye: None,
     };
     let (mut placeable, mut placement) = (Vec::new(), None);
     if let Ok((maps, best)) = placer.plan(&cloud.positions, &robot) {

@@ -454,6 +454,7 @@ fn place<'py>(
     let placer = GridPlacer {
         options,
         unseen: UnseenSpace::AsPoints,
+        eye: None,
     };
     let robot = Point3::new(robot.0, robot.1, robot.2);
     let (maps, best) = py

@@ -17,7 +17,10 @@
 //!
 //! Cells where the cloud has no point at all were not seen; [`UnseenSpace`] says what to assume
 //! there: free and supported (optimistic), occupied (conservative), or nothing (as the points
-//! say: unsupported, not occupied), which completed clouds use.
+//! say: unsupported, not occupied), which completed clouds use. Given the camera the points were
+//! seen from ([`build_map_seen_from`]), a cell the sight line to a point below the plane crossed
+//! at the plane's height was seen too, and seen empty: the floor seen past a table's edge says
+//! there is no table there, so even the optimistic map does not stand an object on it.
 
 use deocc_geometry::normals::estimate_normals;
 use deocc_geometry::voxel::voxel_downsample;
@@ -220,7 +223,8 @@ pub struct PlaceMap {
     /// Row-major (y rows, x columns).
     pub support: Vec<bool>,
     pub occupied: Vec<bool>,
-    /// Some point fell in the cell.
+    /// Some point fell in the cell, or a sight line crossed it at the plane's height on its way
+    /// to a point below ([`build_map_seen_from`]).
     pub seen: Vec<bool>,
     /// Some occupied cell lies under the dilated footprint centred here.
     pub blocked: Vec<bool>,
@@ -303,6 +307,20 @@ pub fn build_map(
     opts: &PlaceOptions,
     unseen: UnseenSpace,
 ) -> Result<PlaceMap, RobotError> {
+    build_map_seen_from(points, plane, opts, unseen, None)
+}
+
+/// [`build_map`] for points seen from `eye` (world frame; one camera: the points of a single
+/// frame, or of frames taken from about the same place): the cells where a sight line to a point
+/// below the plane crosses the plane's height count as seen and empty (no support), whatever
+/// [`UnseenSpace`] says (the module docs). `None`: [`build_map`].
+pub fn build_map_seen_from(
+    points: &[Point3<f32>],
+    plane: &SupportPlane,
+    opts: &PlaceOptions,
+    unseen: UnseenSpace,
+    eye: Option<&Point3<f32>>,
+) -> Result<PlaceMap, RobotError> {
     opts.validate()?;
     let [x0, y0, x1, y1] = plane.bounds;
     let cell = opts.cell_m;
@@ -318,14 +336,26 @@ pub fn build_map(
     let mut support = vec![false; nx * ny];
     let mut occupied = vec![false; nx * ny];
     let mut seen = vec![false; nx * ny];
+    let cell_of = |x: f32, y: f32| {
+        let (fx, fy) = ((x - x0) / cell, (y - y0) / cell);
+        (fx >= 0.0 && fy >= 0.0 && fx < nx as f32 && fy < ny as f32)
+            .then(|| fy as usize * nx + fx as usize)
+    };
+    let eye = eye.map(|e| level * e).filter(|e| e.z > plane.height);
     for p in points {
         let p = level * p;
-        let (fx, fy) = ((p.x - x0) / cell, (p.y - y0) / cell);
-        if !(fx >= 0.0 && fy >= 0.0 && fx < nx as f32 && fy < ny as f32) {
-            continue;
-        }
-        let i = fy as usize * nx + fx as usize;
         let dz = p.z - plane.height;
+        if let (Some(e), true) = (eye, dz < -opts.support_tolerance_m) {
+            // Where the sight line to a point below the plane crosses the plane's height.
+            let t = (plane.height - e.z) / (p.z - e.z);
+            let c = e + (p - e) * t;
+            if let Some(i) = cell_of(c.x, c.y) {
+                seen[i] = true;
+            }
+        }
+        let Some(i) = cell_of(p.x, p.y) else {
+            continue;
+        };
         if dz.abs() <= opts.support_tolerance_m {
             support[i] = true;
         }
@@ -338,7 +368,7 @@ pub fn build_map(
         support = close(&support, nx, ny, k);
     }
     for i in 0..nx * ny {
-        seen[i] = support[i] || occupied[i];
+        seen[i] |= support[i] || occupied[i];
     }
     for i in 0..nx * ny {
         if !seen[i] {
@@ -484,6 +514,10 @@ pub trait PlacePlanner: Send + Sync {
 pub struct GridPlacer {
     pub options: PlaceOptions,
     pub unseen: UnseenSpace,
+    /// The camera the points were seen from, when they come from one (see
+    /// [`build_map_seen_from`]); matters only for the observed maps (unseen space free or
+    /// occupied).
+    pub eye: Option<Point3<f32>>,
 }
 
 impl PlacePlanner for GridPlacer {
@@ -517,7 +551,8 @@ impl PlacePlanner for GridPlacer {
         let mut maps = Vec::new();
         let mut best: Option<Placement> = None;
         for (k, plane) in planes.iter().enumerate() {
-            let map = build_map(points, plane, &self.options, self.unseen)?;
+            let map =
+                build_map_seen_from(points, plane, &self.options, self.unseen, self.eye.as_ref())?;
             if let Some(mut p) = choose_placement(&map, robot, &self.options) {
                 if best.as_ref().is_none_or(|b| p.score > b.score) {
                     p.plane = k;

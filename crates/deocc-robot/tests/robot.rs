@@ -2,7 +2,10 @@
 
 use deocc_robot::grasp::frame;
 use deocc_robot::grasp_eval::{affordance_iou, precision, GraspOutcome, GroundTruthScene};
-use deocc_robot::place::{build_map, choose_placement, compare_maps, find_support_planes};
+use deocc_robot::place::{
+    build_map, build_map_seen_from, choose_placement, compare_maps, find_support_planes,
+    SupportPlane,
+};
 use deocc_robot::{
     AntipodalPlanner, Grasp, GraspPlanner, GripperConfig, PlaceOptions, UnseenSpace,
 };
@@ -345,4 +348,80 @@ fn placement_map_over_a_table_with_a_box() {
     let blind = build_map(&no_box, &table, &opts, UnseenSpace::AsPoints).unwrap();
     let sc = compare_maps(&blind, &map, &workspace).unwrap();
     assert!(sc.iou < 1.0 && sc.false_placeable_rate > 0.0, "{sc:?}");
+}
+
+/// The optimistic map (unseen space free) given the camera: the floor seen past the table's front
+/// edge says there is no table there, so no footprint hangs over that edge; the part of the table
+/// the view does not see (behind a wall of points standing on it) stays free and supported, and
+/// without the camera the cells past the edge are unseen and so supported.
+#[test]
+fn sight_lines_to_the_floor_past_an_edge_are_seen_empty_space() {
+    let eye = Point3::new(0.0f32, -1.5, 1.6);
+    let (h, half) = (0.75f32, [0.5f32, 0.3]);
+    let on_table = |x: f32, y: f32| x.abs() <= half[0] && y.abs() <= half[1];
+    let mut points = Vec::new();
+    let step = 0.005;
+    // The table top in view: not behind the wall at y = 0.1 (2 cm thick, 30 cm high).
+    for i in 0..=200 {
+        for j in 0..=120 {
+            let (x, y) = (-0.5 + i as f32 * step, -0.3 + j as f32 * step);
+            let hidden = y > 0.1 && {
+                // Where the sight line to (x, y, h) meets y = 0.1.
+                let t = (0.1 - eye.y) / (y - eye.y);
+                eye.z + t * (h - eye.z) < h + 0.3
+            };
+            if !hidden {
+                points.push(Point3::new(x, y, h));
+            }
+        }
+    }
+    for i in 0..=200 {
+        for k in 0..=60 {
+            points.push(Point3::new(
+                -0.5 + i as f32 * step,
+                0.1,
+                h + k as f32 * step,
+            ));
+        }
+    }
+    // The floor, where a sight line reaches it past the table.
+    for i in 0..=300 {
+        for j in 0..=500 {
+            let (x, y) = (-0.75 + i as f32 * step, -1.3 + j as f32 * step);
+            let t = (h - eye.z) / (0.0 - eye.z);
+            let (cx, cy) = (eye.x + t * (x - eye.x), eye.y + t * (y - eye.y));
+            if !on_table(cx, cy) && cy < 0.1 {
+                points.push(Point3::new(x, y, 0.0));
+            }
+        }
+    }
+    let plane = SupportPlane {
+        height: h,
+        bounds: [-0.6, -0.4, 0.6, 0.4],
+        points: 0,
+    };
+    let opts = PlaceOptions::default();
+    let blind = build_map(&points, &plane, &opts, UnseenSpace::Free).unwrap();
+    let seeing =
+        build_map_seen_from(&points, &plane, &opts, UnseenSpace::Free, Some(&eye)).unwrap();
+    let cell_at = |x: f32, y: f32| {
+        let cx = ((x - plane.bounds[0]) / opts.cell_m) as usize;
+        let cy = ((y - plane.bounds[1]) / opts.cell_m) as usize;
+        cy * blind.nx + cx
+    };
+    // A footprint centred 2 cm inside the front edge hangs 2 cm over it.
+    let edge = cell_at(0.0, -0.28);
+    assert!(blind.placeable[edge] && !blind.seen[cell_at(0.0, -0.35)]);
+    assert!(!seeing.placeable[edge] && seeing.seen[cell_at(0.0, -0.35)]);
+    assert!(!seeing.support[cell_at(0.0, -0.35)]);
+    // In plain view, and behind the wall (never seen, no floor seen through it): placeable.
+    for (x, y) in [(0.0, -0.15), (0.2, 0.22)] {
+        assert!(seeing.placeable[cell_at(x, y)], "({x}, {y})");
+    }
+    assert!(!seeing.seen[cell_at(0.2, 0.22)]);
+    // For the maps of completed clouds (as the points say) the camera changes nothing.
+    let as_points = build_map(&points, &plane, &opts, UnseenSpace::AsPoints).unwrap();
+    let as_points_eye =
+        build_map_seen_from(&points, &plane, &opts, UnseenSpace::AsPoints, Some(&eye)).unwrap();
+    assert_eq!(as_points.placeable, as_points_eye.placeable);
 }

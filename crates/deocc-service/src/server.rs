@@ -424,6 +424,7 @@ fn place(req: &PlaceRequest) -> Result<PlaceResponse, Status> {
     let placer = GridPlacer {
         options,
         unseen: UnseenSpace::AsPoints,
+        eye: None,
     };
     let (maps, best) = placer
         .plan(&cloud.positions, &robot.into())
