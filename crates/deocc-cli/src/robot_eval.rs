@@ -28,8 +28,8 @@ pub struct GraspArgs {
 }
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
-    let chains = robot_chains(a.weights.as_ref())?;
     let opts = a.pipeline.options()?;
+    let chains = robot_chains(a.weights.as_ref(), &opts)?;
     let options = crate::robot::grasp_options(a.grasp_options.as_deref())?;
     let mut preset = deocc_synth::dataset::pickup_v1();
     if a.tuning {
@@ -47,11 +47,26 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     Ok(())
 }
 
-/// The completer rows of the robot-task benchmarks: the rules completer and the shipped chain.
+/// The completer rows of the robot-task benchmarks: the rules completer at the pipeline's
+/// options, at the silhouette-relative cap that makes it strongest on these tasks
+/// ([`deocc_eval::RULES_WIDTH_CAP_FOR_ROBOT_TASKS`]), and the shipped chain.
 fn robot_chains(
     weights: Option<&PathBuf>,
-) -> Result<Vec<(String, deocc_completion::CompleterChain)>> {
-    crate::completers::named_chains(weights.map(PathBuf::as_path), &["rules", "gldot,rules"])
+    opts: &deocc_pipeline::PipelineOptions,
+) -> Result<Vec<deocc_eval::ChainRow>> {
+    let mut rows: Vec<deocc_eval::ChainRow> = crate::completers::named_chains(
+        weights.map(PathBuf::as_path),
+        &["rules", "rules", "gldot,rules"],
+    )?
+    .into_iter()
+    .map(|(name, chain)| deocc_eval::ChainRow::new(name, chain))
+    .collect();
+    rows[1].name = deocc_eval::RULES_WIDTH_CAP_ROW.into();
+    rows[1].options = Some(deocc_pipeline::PipelineOptions {
+        rules_max_thickness_per_width: deocc_eval::RULES_WIDTH_CAP_FOR_ROBOT_TASKS,
+        ..opts.clone()
+    });
+    Ok(rows)
 }
 
 #[derive(Args)]
@@ -86,8 +101,8 @@ pub struct PlaceArgs {
 }
 
 pub fn place(a: PlaceArgs) -> Result<()> {
-    let chains = robot_chains(a.weights.as_ref())?;
     let opts = a.pipeline.options()?;
+    let chains = robot_chains(a.weights.as_ref(), &opts)?;
     let mut preset = deocc_synth::dataset::preset(&a.preset)?;
     if a.tuning {
         let first = preset.seeds[0] + 50_000;

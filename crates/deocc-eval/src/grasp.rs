@@ -203,7 +203,7 @@ fn subset(rows: &[&SceneGrasps]) -> Subset {
 /// `deocc eval grasp` on the first `scenes` of `preset` (pickup-v1, or its tuning seeds) with each
 /// named chain.
 pub fn grasp_benchmark(
-    chains: &[(String, CompleterChain)],
+    chains: &[crate::ChainRow],
     opts: &deocc_pipeline::PipelineOptions,
     options: &GraspOptions,
     preset: &deocc_synth::dataset::Preset,
@@ -218,7 +218,7 @@ pub fn grasp_benchmark(
         options: options.clone(),
     };
     let mut names: Vec<String> = vec!["observed".into()];
-    names.extend(chains.iter().map(|(n, _)| n.clone()));
+    names.extend(chains.iter().map(|c| c.name.clone()));
     names.push("ground_truth".into());
     let mut per: Vec<Vec<SceneGrasps>> = vec![Vec::new(); names.len()];
     for &seed in &preset.seeds[..n] {
@@ -263,17 +263,17 @@ pub fn grasp_benchmark(
         let input = rendered.scene_input();
         // The occluder's far side matters to a gripper reaching behind it: complete every
         // object, occluded or not.
-        let opts = &deocc_pipeline::PipelineOptions {
+        let for_grasping = |o: &deocc_pipeline::PipelineOptions| deocc_pipeline::PipelineOptions {
             complete_unoccluded: true,
-            ..opts.clone()
+            ..o.clone()
         };
         let mut rows = Vec::new();
         let empty = CompleterChain::default();
-        for (k, chain) in std::iter::once(&empty)
-            .chain(chains.iter().map(|(_, c)| c))
+        for (k, (chain, row_opts)) in std::iter::once((&empty, opts))
+            .chain(chains.iter().map(|c| (&c.chain, c.options_or(opts))))
             .enumerate()
         {
-            let out = deocc_pipeline::run(&input, chain, opts, &Vec::new())?;
+            let out = deocc_pipeline::run(&input, chain, &for_grasping(row_opts), &Vec::new())?;
             let cloud = if k == 0 {
                 &out.observed
             } else {

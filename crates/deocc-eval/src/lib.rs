@@ -19,6 +19,47 @@ pub mod reconstruction;
 pub mod scenes;
 pub mod stats;
 
+/// The rules completer's silhouette-relative thickness cap at which it is strongest on the robot
+/// tasks (`rules_max_thickness_per_width`; the pipeline's default leaves it off, where the rules'
+/// hidden recall is highest). Chosen on tuning scenes (`deocc eval place --tuning --scenes 50`,
+/// `deocc eval grasp --tuning --scenes 60`, `--options` with the field at 1.0 and 0.75): the
+/// rules' placement IoU 0.869 (off) / 0.878 (1.0) / 0.899 (0.75), heavy top-1 at mu 0.4 0.735
+/// (off) / 0.765 (0.75); their hidden recall on bench-v1 tuning scenes 0.423 / 0.418 / 0.396.
+pub const RULES_WIDTH_CAP_FOR_ROBOT_TASKS: f32 = 0.75;
+
+/// The name of the robot-task benchmarks' row of the rules completer at that cap.
+pub const RULES_WIDTH_CAP_ROW: &str = "rules_width_cap";
+
+/// A completer row of a robot-task benchmark: its name, its chain, and pipeline options of its
+/// own where it runs with other settings than the benchmark's (a baseline at the settings that
+/// make it strongest for the task).
+pub struct ChainRow {
+    pub name: String,
+    pub chain: deocc_completion::CompleterChain,
+    /// Replaces the benchmark's pipeline options for this row (the benchmark's own overrides,
+    /// such as completing every object for grasping, still apply on top).
+    pub options: Option<deocc_pipeline::PipelineOptions>,
+}
+
+impl ChainRow {
+    /// A row with the benchmark's options.
+    pub fn new(name: impl Into<String>, chain: deocc_completion::CompleterChain) -> Self {
+        Self {
+            name: name.into(),
+            chain,
+            options: None,
+        }
+    }
+
+    /// The options this row runs with.
+    pub fn options_or<'a>(
+        &'a self,
+        benchmark: &'a deocc_pipeline::PipelineOptions,
+    ) -> &'a deocc_pipeline::PipelineOptions {
+        self.options.as_ref().unwrap_or(benchmark)
+    }
+}
+
 /// What can stop an evaluation.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {

@@ -191,7 +191,7 @@ pub type PictureSink<'a> = &'a mut dyn FnMut(u64, RgbImage) -> Result<(), EvalEr
 /// scene's seed; the other scenes are not drawn.
 pub fn place_benchmark(
     preset: &deocc_synth::dataset::Preset,
-    chains: &[(String, CompleterChain)],
+    chains: &[crate::ChainRow],
     opts: &deocc_pipeline::PipelineOptions,
     scenes: usize,
     mut picture: Option<(usize, PictureSink<'_>)>,
@@ -213,7 +213,7 @@ pub fn place_benchmark(
         "observed_optimistic".to_string(),
         "observed_conservative".to_string(),
     ];
-    names.extend(chains.iter().map(|(n, _)| n.clone()));
+    names.extend(chains.iter().map(|c| c.name.clone()));
     names.push(SEEN_TRUTH.into());
     names.push("ground_truth".into());
     let mut per: Vec<Vec<ScenePlace>> = vec![Vec::new(); names.len()];
@@ -295,8 +295,9 @@ pub fn place_benchmark(
                 &m, &truth, &workspace, &behind, &robot, &popts, seed,
             )?);
         }
-        for (name, chain) in chains {
-            let out = deocc_pipeline::run(&input, chain, opts, &Vec::new())?;
+        for row in chains {
+            let (name, chain) = (&row.name, &row.chain);
+            let out = deocc_pipeline::run(&input, chain, row.options_or(opts), &Vec::new())?;
             let m = build_map(
                 &out.completed.positions,
                 &plane,
@@ -407,8 +408,8 @@ mod tests {
     #[test]
     fn behind_the_clutter_is_the_unseen_part_of_the_table() {
         let preset = deocc_synth::dataset::place_v2();
-        let chains = vec![(
-            "rules".to_string(),
+        let chains = vec![crate::ChainRow::new(
+            "rules",
             CompleterChain::new(vec![Box::new(
                 deocc_completion::rules::RulesCompleter::default(),
             )]),

@@ -258,6 +258,7 @@ pub fn run_observed(
                 },
                 max_thickness_per_width: match link.provenance() {
                     Provenance::Model => opts.generated_max_thickness_per_width,
+                    Provenance::Rules => opts.rules_max_thickness_per_width,
                     _ => 0.0,
                 },
                 seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
@@ -287,6 +288,7 @@ pub fn run_observed(
                     Provenance::Rules,
                     &fuse::FuseOptions {
                         max_thickness_m: opts.rules_max_thickness_m,
+                        max_thickness_per_width: opts.rules_max_thickness_per_width,
                         seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
                         seen_behind: c.seen_behind.as_deref(),
                         only: Some(&left_out),

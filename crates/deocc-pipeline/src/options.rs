@@ -114,6 +114,10 @@ pub struct PipelineOptions {
     /// mirrored ([`RULES_MAX_THICKNESS_M`]): a mirror of a chair's or a table's near side puts
     /// most of its points in empty space.
     pub rules_max_thickness_m: f32,
+    /// The silhouette-relative cap (0 = off) on the rules completer's far side
+    /// ([`RULES_MAX_THICKNESS_PER_WIDTH`]): its mirrored back no deeper behind the near side than
+    /// this many times the width of its amodal row run, as for a learned completer.
+    pub rules_max_thickness_per_width: f32,
     /// A learned completer's revealed pixels (hidden here, no other view's observation) whose
     /// mask probability is below this generate no point, near side or far (0 = every pixel of
     /// the amodal mask): a stricter cut for 3-D points than the mask threshold
@@ -169,6 +173,10 @@ pub const GENERATED_MAX_THICKNESS_PER_WIDTH: f32 = 1.0;
 /// points within 2 cm of a true surface 71.0% -> 72.5%, the rules' 65.5% -> 67.3%, the shipped
 /// chain's hidden recall 0.492 either way.
 pub const CARVE_OUTSIDE_BOUNDING_PLANES_M: f32 = 0.02;
+
+/// The rules completer's silhouette-relative thickness cap
+/// ([`PipelineOptions::rules_max_thickness_per_width`]).
+pub const RULES_MAX_THICKNESS_PER_WIDTH: f32 = 0.0;
 
 /// The rules completer's thickness cap ([`PipelineOptions::rules_max_thickness_m`]), chosen on
 /// the same 20 tuning scenes (`--options` with `{"rules_max_thickness_m": X}`): the rules row's
@@ -233,6 +241,7 @@ impl Default for PipelineOptions {
             generated_max_thickness_m: GENERATED_MAX_THICKNESS_M,
             generated_max_thickness_per_width: GENERATED_MAX_THICKNESS_PER_WIDTH,
             rules_max_thickness_m: RULES_MAX_THICKNESS_M,
+            rules_max_thickness_per_width: RULES_MAX_THICKNESS_PER_WIDTH,
             generated_min_revealed_confidence: GENERATED_MIN_REVEALED_CONFIDENCE,
             generated_max_expected_error_m: GENERATED_MAX_EXPECTED_ERROR_M,
             generated_uncertain_to_rules: GENERATED_UNCERTAIN_TO_RULES,
@@ -371,6 +380,14 @@ impl PipelineOptions {
         ] {
             if !(0.0..=10.0).contains(&v) {
                 return Err(bad(field, format!("{v} m is outside [0, 10] m (0 = off)")));
+            }
+        }
+        for (field, w) in [(
+            "rules_max_thickness_per_width",
+            self.rules_max_thickness_per_width,
+        )] {
+            if !(0.0..=100.0).contains(&w) {
+                return Err(bad(field, format!("{w} is outside [0, 100] (0 = off)")));
             }
         }
         let w = self.generated_max_thickness_per_width;

@@ -865,6 +865,10 @@ fn options_from_json_are_checked() {
         ),
         (r#"{"rules_max_thickness_m": 11}"#, "rules_max_thickness_m"),
         (
+            r#"{"rules_max_thickness_per_width": -1}"#,
+            "rules_max_thickness_per_width",
+        ),
+        (
             r#"{"generated_depth_median_max_crop_m": -0.5}"#,
             "generated_depth_median_max_crop_m",
         ),
@@ -1187,4 +1191,31 @@ fn the_rules_complete_what_the_model_expects_to_be_off() {
     let sure = run(Some(0.0), 0.01, true);
     assert_eq!(sure.points_model, plain.points_model);
     assert_eq!(sure.points_rules, 0);
+}
+
+/// The rules completer's silhouette-relative cap reaches its far side: at a ratio far under any
+/// object's depth over width it keeps fewer rules points than with the cap off, and at a ratio no
+/// object reaches (the 15 cm cap binds first) it changes nothing.
+#[test]
+fn the_rules_far_side_follows_its_silhouette_cap() {
+    let scene = small_scene().scene_input();
+    let chain = CompleterChain::single(RulesCompleter::default());
+    let rules_points = |ratio: f32| {
+        let opts = PipelineOptions {
+            rules_max_thickness_per_width: ratio,
+            ..Default::default()
+        };
+        let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
+        out.completed
+            .generated
+            .unwrap()
+            .iter()
+            .filter(|&&g| g == Provenance::Rules.code())
+            .count()
+    };
+    let off = rules_points(0.0);
+    assert!(off > 0);
+    let tight = rules_points(0.05);
+    assert!(tight < off, "{tight} vs {off}");
+    assert_eq!(rules_points(100.0), off);
 }
