@@ -44,7 +44,7 @@ if "rules" in rows:
         keys.append((" behind the clutter", lambda x: x["iou_behind"]))
     if r["benchmark"].startswith("pickup"):
         subsets.append(("heavy", lambda x: x["visible_fraction"] < 0.5))
-    baselines = ("rules", "rules_width_cap")
+    baselines = tuple(n for n in rows if n.startswith("rules"))
     for name, rs in rows.items():
         if name in ("observed", "ground_truth", "ground_truth_seen_objects", "observed_optimistic",
                     "observed_conservative") + baselines:

@@ -31,9 +31,9 @@ pub struct SceneArgs {
     observed: bool,
 }
 
-/// The scene's completed cloud (or observed with `--observed`), its first camera and how many
-/// frames it has.
-fn completed(a: &SceneArgs) -> Result<(PointCloud, Camera, usize)> {
+/// The scene's completed cloud (or observed with `--observed`) with `options`, its first camera
+/// and how many frames it has.
+fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<(PointCloud, Camera, usize)> {
     let mut scene = read_scene(&a.scene)?;
     let registration = register_unposed(&mut scene)?;
     ensure_instances(&mut scene, &ConvexitySegmenter::default())?;
@@ -42,7 +42,7 @@ fn completed(a: &SceneArgs) -> Result<(PointCloud, Camera, usize)> {
     } else {
         crate::completers::chain(&a.completers)?
     };
-    let out = deocc_pipeline::run(&scene, &chain, &PipelineOptions::default(), &registration)?;
+    let out = deocc_pipeline::run(&scene, &chain, options, &registration)?;
     let camera = scene.frames[0].camera;
     let frames = scene.frames.len();
     Ok((
@@ -117,7 +117,7 @@ struct GraspAnswer<'a> {
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let options = grasp_options(a.options.as_deref())?;
-    let (cloud, camera, _) = completed(&a.scene)?;
+    let (cloud, camera, _) = completed(&a.scene, &PipelineOptions::default())?;
     let ids = cloud.instance.clone().unwrap_or_default();
     let target: Vec<_> = cloud
         .positions
@@ -227,7 +227,8 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         (Some(Unseen::Occupied), _) => UnseenSpace::Occupied,
         (Some(Unseen::AsPoints), _) | (None, false) => UnseenSpace::AsPoints,
     };
-    let (cloud, camera, frames) = completed(&a.scene)?;
+    // Thin far sides: what a placement map needs (PipelineOptions::for_placing).
+    let (cloud, camera, frames) = completed(&a.scene, &PipelineOptions::default().for_placing())?;
     let robot = nalgebra::Point3::from(camera.world_from_camera.translation.vector);
     let placer = GridPlacer {
         options: options.clone(),

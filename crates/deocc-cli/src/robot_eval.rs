@@ -29,7 +29,7 @@ pub struct GraspArgs {
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
-    let chains = robot_chains(a.weights.as_ref(), &opts)?;
+    let chains = grasp_chains(a.weights.as_ref(), &opts)?;
     let options = crate::robot::grasp_options(a.grasp_options.as_deref())?;
     let mut preset = deocc_synth::dataset::pickup_v1();
     if a.tuning {
@@ -47,10 +47,10 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     Ok(())
 }
 
-/// The completer rows of the robot-task benchmarks: the rules completer at the pipeline's
-/// options, at the silhouette-relative cap that makes it strongest on these tasks
-/// ([`deocc_eval::RULES_WIDTH_CAP_FOR_ROBOT_TASKS`]), and the shipped chain.
-fn robot_chains(
+/// The completer rows of the grasping benchmark: the rules completer at the pipeline's options
+/// and at the silhouette-relative cap ([`deocc_eval::RULES_WIDTH_CAP_FOR_ROBOT_TASKS`]), and the
+/// shipped chain.
+fn grasp_chains(
     weights: Option<&PathBuf>,
     opts: &deocc_pipeline::PipelineOptions,
 ) -> Result<Vec<deocc_eval::ChainRow>> {
@@ -66,6 +66,27 @@ fn robot_chains(
         rules_max_thickness_per_width: deocc_eval::RULES_WIDTH_CAP_FOR_ROBOT_TASKS,
         ..opts.clone()
     });
+    Ok(rows)
+}
+
+/// The completer rows of the placing benchmark: the rules completer and the shipped chain, each
+/// at the pipeline's options and with the placing settings on top
+/// ([`deocc_pipeline::PipelineOptions::for_placing`], what `deocc place` runs; rows
+/// [`deocc_eval::PLACING_SUFFIX`]).
+fn place_chains(
+    weights: Option<&PathBuf>,
+    opts: &deocc_pipeline::PipelineOptions,
+) -> Result<Vec<deocc_eval::ChainRow>> {
+    let names = ["rules", "rules", "gldot,rules", "gldot,rules"];
+    let mut rows: Vec<deocc_eval::ChainRow> =
+        crate::completers::named_chains(weights.map(PathBuf::as_path), &names)?
+            .into_iter()
+            .map(|(name, chain)| deocc_eval::ChainRow::new(name, chain))
+            .collect();
+    for k in [1, 3] {
+        rows[k].name = format!("{}{}", rows[k].name, deocc_eval::PLACING_SUFFIX);
+        rows[k].options = Some(opts.clone().for_placing());
+    }
     Ok(rows)
 }
 
@@ -102,7 +123,7 @@ pub struct PlaceArgs {
 
 pub fn place(a: PlaceArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
-    let chains = robot_chains(a.weights.as_ref(), &opts)?;
+    let chains = place_chains(a.weights.as_ref(), &opts)?;
     let mut preset = deocc_synth::dataset::preset(&a.preset)?;
     if a.tuning {
         let first = preset.seeds[0] + 50_000;

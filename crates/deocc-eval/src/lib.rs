@@ -30,6 +30,10 @@ pub const RULES_WIDTH_CAP_FOR_ROBOT_TASKS: f32 = 0.75;
 /// The name of the robot-task benchmarks' row of the rules completer at that cap.
 pub const RULES_WIDTH_CAP_ROW: &str = "rules_width_cap";
 
+/// Appended to the name of a placing benchmark's row that runs with
+/// [`deocc_pipeline::PipelineOptions::for_placing`] on top of the benchmark's options.
+pub const PLACING_SUFFIX: &str = "@placing";
+
 /// A completer row of a robot-task benchmark: its name, its chain, and pipeline options of its
 /// own where it runs with other settings than the benchmark's (a baseline at the settings that
 /// make it strongest for the task).

@@ -267,7 +267,30 @@ pub fn depth_median_radius(radius_px: usize, max_crop_m: f32, crop_width_m: f32)
     }
 }
 
+/// The far-side caps of [`PipelineOptions::for_placing`]: every completer's far side (learned and
+/// rules) no deeper than this many times its amodal row run's width, and no deeper than
+/// [`PLACING_MAX_THICKNESS_M`].
+pub const PLACING_MAX_THICKNESS_PER_WIDTH: f32 = 0.35;
+/// See [`PLACING_MAX_THICKNESS_PER_WIDTH`].
+pub const PLACING_MAX_THICKNESS_M: f32 = 0.03;
+
 impl PipelineOptions {
+    /// These options with the settings for planning placements on the completed cloud (`deocc
+    /// place`): every completer's far side thin ([`PLACING_MAX_THICKNESS_PER_WIDTH`],
+    /// [`PLACING_MAX_THICKNESS_M`]). A placement map needs where things stand, not how deep they
+    /// are: a far side put too deep blocks a footprint's worth of free table around it, one put
+    /// too shallow costs only the strip behind the object. Chosen on place-v1 tuning scenes
+    /// (docs/decisions.md); for grasping, where the planner needs the back, the defaults stay.
+    pub fn for_placing(self) -> Self {
+        Self {
+            generated_max_thickness_per_width: PLACING_MAX_THICKNESS_PER_WIDTH,
+            generated_max_thickness_m: PLACING_MAX_THICKNESS_M,
+            rules_max_thickness_per_width: PLACING_MAX_THICKNESS_PER_WIDTH,
+            rules_max_thickness_m: PLACING_MAX_THICKNESS_M,
+            ..self
+        }
+    }
+
     /// The median filter's radius for a learned completion of a crop `crop_width_m` wide
     /// (`generated_depth_median_px` within `generated_depth_median_max_crop_m`, else 0).
     pub fn generated_depth_median_for(&self, crop_width_m: f32) -> usize {

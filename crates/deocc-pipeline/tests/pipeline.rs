@@ -1195,16 +1195,14 @@ fn the_rules_complete_what_the_model_expects_to_be_off() {
 
 /// The rules completer's silhouette-relative cap reaches its far side: at a ratio far under any
 /// object's depth over width it keeps fewer rules points than with the cap off, and at a ratio no
-/// object reaches (the 15 cm cap binds first) it changes nothing.
+/// object reaches (the 15 cm cap binds first) it changes nothing. The placing settings (thin far
+/// sides) keep fewer too, and are valid options.
 #[test]
 fn the_rules_far_side_follows_its_silhouette_cap() {
     let scene = small_scene().scene_input();
     let chain = CompleterChain::single(RulesCompleter::default());
-    let rules_points = |ratio: f32| {
-        let opts = PipelineOptions {
-            rules_max_thickness_per_width: ratio,
-            ..Default::default()
-        };
+    let rules_points = |opts: PipelineOptions| {
+        opts.validate().unwrap();
         let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
         out.completed
             .generated
@@ -1213,9 +1211,17 @@ fn the_rules_far_side_follows_its_silhouette_cap() {
             .filter(|&&g| g == Provenance::Rules.code())
             .count()
     };
-    let off = rules_points(0.0);
+    let ratio = |r: f32| PipelineOptions {
+        rules_max_thickness_per_width: r,
+        ..Default::default()
+    };
+    let off = rules_points(ratio(0.0));
     assert!(off > 0);
-    let tight = rules_points(0.05);
+    let tight = rules_points(ratio(0.05));
     assert!(tight < off, "{tight} vs {off}");
-    assert_eq!(rules_points(100.0), off);
+    assert_eq!(rules_points(ratio(100.0)), off);
+    let placing = PipelineOptions::default().for_placing();
+    assert_eq!(placing.steps, PipelineOptions::default().steps);
+    let thin = rules_points(placing);
+    assert!(thin < off, "{thin} vs {off}");
 }
