@@ -92,6 +92,9 @@ def grasp(
 ) -> List[Grasp]:
     """Antipodal grasps on instance `target`, best first, checked against every point."""
 
+def placing_options() -> Dict[str, Any]:
+    """Pipeline options for planning placements (every far side thin), for `run(options=...)`."""
+
 def place(
     points: npt.NDArray[np.float32],
     footprint: Tuple[float, float] = (0.08, 0.08),

@@ -429,6 +429,15 @@ fn grasp<'py>(
     Ok(out)
 }
 
+/// The pipeline options for planning placements (`PipelineOptions::for_placing`: every
+/// completer's far side thin), as a dict for `run(frames, options=...)`; `deocc place` uses them.
+#[pyfunction]
+fn placing_options<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+    let text = serde_json::to_string(&deocc_pipeline::PipelineOptions::default().for_placing())
+        .map_err(|e| value_error(format!("options: {e}")))?;
+    py.import("json")?.call_method1("loads", (text,))
+}
+
 /// Where an object of `footprint` (w, d) and `height` (metres) can be put down on a cloud:
 /// a dict with found, position, clearance_m, score and the placeable map of each support plane.
 #[pyfunction]
@@ -566,6 +575,7 @@ fn deocc(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_ply, m)?)?;
     m.add_function(wrap_pyfunction!(grasp, m)?)?;
     m.add_function(wrap_pyfunction!(place, m)?)?;
+    m.add_function(wrap_pyfunction!(placing_options, m)?)?;
     m.add_class::<Client>()?;
     Ok(())
 }

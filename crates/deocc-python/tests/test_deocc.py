@@ -127,6 +127,15 @@ class Deocc(unittest.TestCase):
         c = deocc.run(mm, completer="rules")
         self.assertTrue(np.array_equal(a["points"], c["points"]))
 
+    def test_placing_options_make_thinner_completions(self):
+        opts = deocc.placing_options()
+        self.assertLess(opts["rules_max_thickness_m"], 0.1)
+        self.assertGreater(opts["rules_max_thickness_per_width"], 0.0)
+        f = small(self.frames, 3)
+        thick = deocc.run(f, completer="rules")
+        thin = deocc.run(f, completer="rules", options=opts)
+        self.assertLess(len(thin["points"]), len(thick["points"]))
+
     def test_grasp_and_place_answer(self):
         res = deocc.run(small(self.frames, 3), completer="rules")
         placed = deocc.place(res["points"], footprint=(0.08, 0.08), height=0.12)
