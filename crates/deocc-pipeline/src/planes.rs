@@ -433,6 +433,43 @@ fn inside(hull: &[Point2<f32>], p: &Point2<f32>) -> bool {
         })
 }
 
+/// The point a fill cell centred at `centre` (side `s`) gets in the convex region `poly`: its
+/// centre when that lies inside; else, when the region's edge crosses the cell, the point of the
+/// edge nearest the centre, 1 mm inwards (a table's last, partly covered row of cells: without
+/// it the fill stops up to half a cell short of the edge); else none.
+fn fill_point(poly: &[Point2<f32>], centre: &Point2<f32>, s: f32) -> Option<Point2<f32>> {
+    if inside(poly, centre) {
+        return Some(*centre);
+    }
+    let n = poly.len();
+    if n < 3 {
+        return None;
+    }
+    let nearest = (0..n)
+        .map(|i| {
+            let (a, b) = (poly[i], poly[(i + 1) % n]);
+            let d = b - a;
+            let t = ((centre - a).dot(&d) / d.norm_squared().max(1e-12)).clamp(0.0, 1.0);
+            a + d * t
+        })
+        .min_by(|p, q| {
+            (p - centre)
+                .norm_squared()
+                .total_cmp(&(q - centre).norm_squared())
+        })?;
+    if (nearest.x - centre.x).abs() > s / 2.0 || (nearest.y - centre.y).abs() > s / 2.0 {
+        return None;
+    }
+    let centroid = Point2::from(
+        poly.iter()
+            .map(|p| p.coords)
+            .sum::<nalgebra::Vector2<f32>>()
+            / n as f32,
+    );
+    let q = nearest + (centroid - nearest).normalize() * 1e-3;
+    inside(poly, &q).then_some(q)
+}
+
 /// Area of a counter-clockwise polygon.
 fn polygon_area(poly: &[Point2<f32>]) -> f32 {
     let n = poly.len();
@@ -629,10 +666,10 @@ pub fn complete_found_planes(
                 if occupied.contains(&(a, b)) {
                     continue;
                 }
-                let q = Point2::new((a as f32 + 0.5) * s, (b as f32 + 0.5) * s);
-                if !inside(&joint, &q) {
+                let centre = Point2::new((a as f32 + 0.5) * s, (b as f32 + 0.5) * s);
+                let Some(q) = fill_point(&joint, &centre, s) else {
                     continue;
-                }
+                };
                 let p = origin + e1 * q.x + e2 * q.y;
                 if !allowed(&p, &q) {
                     continue;
@@ -689,6 +726,30 @@ pub fn complete_found_planes(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A cell whose centre lies in the region keeps its centre; a cell the region's edge crosses
+    /// gets a point just inside the edge, within the cell; a cell wholly outside gets none.
+    #[test]
+    fn fill_points_reach_the_region_edge() {
+        // The square [0, 0.953] x [0, 0.5] (counter-clockwise); 1 cm cells.
+        let poly = [
+            Point2::new(0.0f32, 0.0),
+            Point2::new(0.953, 0.0),
+            Point2::new(0.953, 0.5),
+            Point2::new(0.0, 0.5),
+        ];
+        let s = 0.01;
+        let c = Point2::new(0.505, 0.255);
+        assert_eq!(fill_point(&poly, &c, s), Some(c));
+        // The cell [0.95, 0.96]: its centre lies 2 mm past the edge at x = 0.953.
+        let q = fill_point(&poly, &Point2::new(0.955, 0.255), s).unwrap();
+        assert!(inside(&poly, &q));
+        assert!(
+            q.x > 0.95 && q.x < 0.953 && (q.y - 0.255).abs() < 1e-3,
+            "{q:?}"
+        );
+        assert_eq!(fill_point(&poly, &Point2::new(0.965, 0.255), s), None);
+    }
 
     #[test]
     fn keep_inside_drops_only_points_beyond_the_margin_behind_a_plane() {
