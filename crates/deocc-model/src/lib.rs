@@ -12,12 +12,15 @@
 //! - [`train`]: the resumable training loop (run directory, AdamW, EMA, checkpoints);
 //! - [`export`]: shipping a run's EMA weights in f16;
 //! - [`infer`]: loading a trained model and completing crops ([`GlDotCompleter`], one
-//!   implementation of the pipeline's `deocc_completion::Completer` seam).
+//!   implementation of the pipeline's `deocc_completion::Completer` seam);
+//! - [`depth_anything`]: Depth Anything V2 from a user's weights file, a
+//!   `deocc_pipeline::depth::DepthSource` (relative depth from RGB, to fill the sensor's holes).
 
 pub mod builtin;
 pub mod chain;
 pub mod config;
 pub mod data;
+pub mod depth_anything;
 pub mod encode;
 pub mod export;
 pub mod flow;

@@ -5,6 +5,7 @@
 //! | stage | file | function |
 //! |---|---|---|
 //! | read scene (no side effects) | `deocc_io::scene` | [`read_scene`] |
+//! | depth: fill what the sensor did not measure (optional) | [`depth`] | [`depth::fill_scene_depth`] |
 //! | registration of pose-free input | [`registration`] | [`registration::register_unposed`] |
 //! | instances: given, segmented or mixed | [`instances`], [`segment`] | [`instances::ensure_instances`] |
 //! | reconstruction | [`reconstruct`] | [`reconstruct::reconstruct`] |
@@ -22,13 +23,15 @@
 //!
 //! [`run`] composes them on a loaded scene whose frames all have instance maps. The parts users
 //! swap are traits: the completer chain ([`deocc_completion::Completer`]: GL-DoT, the rules
-//! completer, or your own) and the segmenter ([`segment::Segmenter`]). This crate does not
+//! completer, or your own), the segmenter ([`segment::Segmenter`]) and the depth source
+//! ([`depth::DepthSource`]). This crate does not
 //! depend on the benchmark renderer or on the ML stack: the learned completer is handed in.
 
 pub mod carve;
 pub mod complete;
 pub mod crops;
 pub mod cuboid;
+pub mod depth;
 pub mod error;
 pub mod fuse;
 pub mod gate;
