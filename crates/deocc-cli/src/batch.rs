@@ -33,6 +33,8 @@ pub struct BatchArgs {
     completers: CompleterArgs,
     #[command(flatten)]
     pipeline: PipelineArgs,
+    #[command(flatten)]
+    depth: crate::depth::DepthArgs,
     /// Ignore given instance maps and segment every frame with the default RGB-D segmenter.
     #[arg(long)]
     segment: bool,
@@ -129,6 +131,7 @@ pub fn batch(a: BatchArgs) -> Result<()> {
     let (index, count) = shard(&a)?;
     let opts = a.pipeline.options()?;
     let chain = crate::completers::chain(&a.completers)?;
+    let depth = a.depth.source()?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("{}: cannot create the output folder", a.out.display()))?;
     let summary_path = a.out.join(format!("summary-{index}-of-{count}.jsonl"));
@@ -158,7 +161,15 @@ pub fn batch(a: BatchArgs) -> Result<()> {
             line.status = "skipped";
             skipped += 1;
         } else {
-            match crate::run::run_scene(Some(scene), &out, &chain, &opts, a.segment, false) {
+            match crate::run::run_scene(
+                Some(scene),
+                &out,
+                &chain,
+                &opts,
+                depth.as_ref(),
+                a.segment,
+                false,
+            ) {
                 Ok(run) => {
                     let r = &run.result.report;
                     line.points_observed = Some(r.points_observed);

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 mod batch;
 mod bench;
 mod completers;
+mod depth;
 mod eval;
 mod progress;
 mod report;

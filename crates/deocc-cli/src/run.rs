@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::Args;
+use deocc_pipeline::depth::{fill_scene_depth, DepthFillOptions, DepthSource};
 use deocc_pipeline::instances::ensure_instances;
 use deocc_pipeline::output::{write_output, Staging};
 use deocc_pipeline::registration::register_unposed;
@@ -12,6 +13,7 @@ use deocc_pipeline::segment::ConvexitySegmenter;
 use deocc_pipeline::{read_scene, PipelineOptions};
 
 use crate::completers::CompleterArgs;
+use crate::depth::DepthArgs;
 
 #[derive(Args)]
 pub struct RunArgs {
@@ -25,6 +27,8 @@ pub struct RunArgs {
     example: bool,
     #[command(flatten)]
     completers: CompleterArgs,
+    #[command(flatten)]
+    depth: DepthArgs,
     /// Pipeline options from a JSON file (any field of the run report's `options`); the flags
     /// below override it.
     #[arg(long)]
@@ -54,7 +58,8 @@ pub struct SceneRun {
 }
 
 /// Runs the pipeline on the scene folder `input` (or the built-in example when `None`) and
-/// writes its output folder `out` atomically: read, register unposed frames, segment frames
+/// writes its output folder `out` atomically: read, fill the depth the sensor did not measure
+/// from `depth` (nothing for [`deocc_pipeline::depth::SensorDepth`]), register unposed frames, segment frames
 /// without instance maps (all frames with `segment`), complete, evaluate against
 /// `ground_truth.ply` if the scene has one, write, swap in.
 pub fn run_scene(
@@ -62,6 +67,7 @@ pub fn run_scene(
     out: &Path,
     chain: &deocc_completion::CompleterChain,
     opts: &PipelineOptions,
+    depth: &dyn DepthSource,
     segment: bool,
     mcap: bool,
 ) -> Result<SceneRun> {
@@ -75,6 +81,16 @@ pub fn run_scene(
         }
     };
     let mut scene = read_scene(&input_dir)?;
+    let depth_fill = fill_scene_depth(&mut scene, depth, &DepthFillOptions::default())?;
+    for r in &depth_fill {
+        match &r.skipped {
+            None => eprintln!(
+                "frame {}: filled {} unmeasured depth pixels from {} ({} measured)",
+                r.frame, r.filled, r.source, r.measured
+            ),
+            Some(why) => eprintln!("frame {}: depth not filled: {why}", r.frame),
+        }
+    }
     let registration = register_unposed(&mut scene)?;
     if segment {
         for f in &mut scene.frames {
@@ -85,7 +101,8 @@ pub fn run_scene(
     if segmented > 0 {
         eprintln!("segmented the frames with the default RGB-D segmenter: {segmented} instances across views");
     }
-    let result = deocc_pipeline::run(&scene, chain, opts, &registration)?;
+    let mut result = deocc_pipeline::run(&scene, chain, opts, &registration)?;
+    result.report.depth_fill = depth_fill;
     let gt_path = input_dir.join("ground_truth.ply");
     let evaluation = if gt_path.exists() {
         let (gt, seen) = deocc_eval::reconstruction::read_ground_truth(&gt_path)?;
@@ -152,11 +169,20 @@ pub fn run(a: RunArgs) -> Result<()> {
     opts.validate()
         .map_err(|e| anyhow::anyhow!("{e} (from --steps / --rho / --options)"))?;
     let chain = crate::completers::chain(&a.completers)?;
+    let depth = a.depth.source()?;
     let SceneRun {
         result,
         evaluation,
         out,
-    } = run_scene(input.as_deref(), &a.out, &chain, &opts, a.segment, a.mcap)?;
+    } = run_scene(
+        input.as_deref(),
+        &a.out,
+        &chain,
+        &opts,
+        depth.as_ref(),
+        a.segment,
+        a.mcap,
+    )?;
     let r = &result.report;
     println!(
         "{} frames, {} instances completed by {} ({} with generated points, {:.2} objects/s), {} observed + {} generated points, {:.1} s",

@@ -6,10 +6,12 @@
 //! - [`masks`]: mask utilities shared by the baselines (IoU, convex hull);
 //! - [`objects`]: per-object 3-D hidden completeness, a row per completer;
 //! - [`reconstruction`], [`perception`]: the bench-v1 scene benchmarks;
+//! - [`depth_fill`]: filling the depth the sensor did not measure, per depth source;
 //! - [`bench`]: speed against peers; [`stats`]: bootstrap intervals, AUC.
 
 pub mod amodal;
 pub mod bench;
+pub mod depth_fill;
 pub mod grasp;
 pub mod masks;
 pub mod objects;

@@ -572,5 +572,6 @@ fn make_report(
         },
         registration: registration.clone(),
         peak_rss_mib: report::peak_rss_mib(),
+        depth_fill: Vec::new(),
     }
 }

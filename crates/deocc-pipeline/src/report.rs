@@ -121,6 +121,9 @@ pub struct RunReport {
     pub registration: Vec<FrameRegistration>,
     /// The process's peak resident memory when the run ended (Linux `VmHWM`), MiB.
     pub peak_rss_mib: Option<f64>,
+    /// What the depth stage filled in each frame before the run ([`crate::depth::fill_depth`];
+    /// empty when the sensor's depth was used as it is). Set by the caller that ran it.
+    pub depth_fill: Vec<crate::depth::DepthFillReport>,
 }
 
 /// The process's peak resident set size so far (Linux: `VmHWM` of /proc/self/status), MiB.
