@@ -28,11 +28,8 @@ impl DepthArgs {
     pub fn source(&self) -> Result<Box<dyn DepthSource>> {
         Ok(match (&self.depth_model, self.fill_depth) {
             (Some(path), _) => Box::new(
-                deocc_model::depth_anything::DepthAnything::load(
-                    path,
-                    &candle_core::Device::Cpu,
-                )
-                .with_context(|| "--depth-model")?,
+                deocc_model::depth_anything::DepthAnything::load(path, &candle_core::Device::Cpu)
+                    .with_context(|| "--depth-model")?,
             ),
             (None, true) => Box::new(InterpolatedDepth::default()),
             (None, false) => Box::new(SensorDepth),

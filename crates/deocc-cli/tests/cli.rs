@@ -354,3 +354,75 @@ fn run_writes_an_mcap_recording() {
     }
     assert_eq!(topics.get("/tf"), Some(&2));
 }
+
+/// `--fill-depth` fills the holes of a noisy sensor's frames and reports it; a depth model file
+/// that is not there is refused before anything is written.
+#[test]
+fn run_fills_depth_holes_and_refuses_a_missing_depth_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    let o = deocc()
+        .args([
+            "synth", "scenes", "--count", "1", "--seed", "5", "--views", "2",
+        ])
+        .args(["--width", "128", "--height", "96", "--gt-density", "500"])
+        .arg("--sensor-noise")
+        .arg("--out")
+        .arg(&scenes)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene = scenes.join("scene_000000");
+    let out = dir.path().join("out");
+    let o = deocc()
+        .arg("run")
+        .arg(&scene)
+        .args(["--completer", "rules", "--fill-depth", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("unmeasured depth pixels from interpolated"),
+        "{err}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(out.join(deocc_pipeline::output::REPORT_FILE)).unwrap(),
+    )
+    .unwrap();
+    let fills = report["depth_fill"].as_array().unwrap();
+    assert_eq!(fills.len(), 2);
+    assert!(fills.iter().all(|f| f["source"] == "interpolated"));
+    assert!(
+        fills
+            .iter()
+            .map(|f| f["filled"].as_u64().unwrap())
+            .sum::<u64>()
+            > 0
+    );
+    // The scene's own files are not changed.
+    let depth = deocc_io::images::read_depth_png(&scene.join("depth/000000.png")).unwrap();
+    assert_eq!(
+        depth.valid_count() as u64,
+        fills[0]["measured"].as_u64().unwrap()
+    );
+
+    let out2 = dir.path().join("out2");
+    let o = deocc()
+        .arg("run")
+        .arg(&scene)
+        .arg("--depth-model")
+        .arg(dir.path().join("da2.safetensors"))
+        .arg("--out")
+        .arg(&out2)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--depth-model") && err.contains("da2.safetensors"),
+        "{err}"
+    );
+    assert!(!out2.exists());
+}

@@ -257,7 +257,10 @@ pub fn depth_fill_benchmark(
         })
         .collect();
     Ok(DepthFillReport {
-        benchmark: format!("{} with the sensor model and one object's depth dropped per view", preset.name),
+        benchmark: format!(
+            "{} with the sensor model and one object's depth dropped per view",
+            preset.name
+        ),
         scenes: n,
         views_per_scene: views,
         rows,

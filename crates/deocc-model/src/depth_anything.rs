@@ -145,7 +145,9 @@ impl DepthAnything {
         let shape = DepthAnythingShape::for_embed_dim(embed_dim).ok_or_else(|| {
             file_err(
                 path,
-                format!("encoder width {embed_dim} is none of small (384), base (768), large (1024)"),
+                format!(
+                    "encoder width {embed_dim} is none of small (384), base (768), large (1024)"
+                ),
             )
         })?;
         Self::from_tensors(tensors, shape, path, device)
@@ -180,12 +182,8 @@ impl DepthAnything {
             .map(|(k, t)| Ok((k, t.to_dtype(DType::F32)?)))
             .collect::<candle_core::Result<HashMap<_, _>>>()?;
         let vb = VarBuilder::from_tensors(tensors, DType::F32, device);
-        Self::build(shape, vb, device).map_err(|e| {
-            file_err(
-                path,
-                format!("weights do not fit Depth Anything V2: {e}"),
-            )
-        })
+        Self::build(shape, vb, device)
+            .map_err(|e| file_err(path, format!("weights do not fit Depth Anything V2: {e}")))
     }
 
     pub fn shape(&self) -> &DepthAnythingShape {
@@ -204,7 +202,11 @@ impl DepthAnything {
         let mut input = vec![0f32; 3 * s * s];
         for y in 0..s {
             for x in 0..s {
-                let px = bilinear_rgb(rgb, (x as f32 + 0.5) * w as f32 / s as f32 - 0.5, (y as f32 + 0.5) * h as f32 / s as f32 - 0.5);
+                let px = bilinear_rgb(
+                    rgb,
+                    (x as f32 + 0.5) * w as f32 / s as f32 - 0.5,
+                    (y as f32 + 0.5) * h as f32 / s as f32 - 0.5,
+                );
                 for c in 0..3 {
                     input[c * s * s + y * s + x] = (px[c] / 255.0 - MEAN[c]) / STD[c];
                 }
@@ -235,7 +237,10 @@ impl DepthAnything {
 
 fn read_tensors(path: &Path, device: &Device) -> Result<HashMap<String, Tensor>> {
     if !path.is_file() {
-        return Err(file_err(path, "no such file (a Depth Anything V2 safetensors file)"));
+        return Err(file_err(
+            path,
+            "no such file (a Depth Anything V2 safetensors file)",
+        ));
     }
     candle_core::safetensors::load(path, device).map_err(|e| file_err(path, e))
 }

@@ -35,7 +35,11 @@ fn random(shape: DepthAnythingShape) -> (DepthAnything, VarMap) {
 
 fn image(w: u32, h: u32) -> RgbImage {
     RgbImage::from_fn(w, h, |u, v| {
-        image::Rgb([(u * 255 / w) as u8, (v * 255 / h) as u8, ((u ^ v) & 255) as u8])
+        image::Rgb([
+            (u * 255 / w) as u8,
+            (v * 255 / h) as u8,
+            ((u ^ v) & 255) as u8,
+        ])
     })
 }
 
@@ -64,27 +68,55 @@ fn a_checkpoint_in_the_original_layout_loads_and_answers_as_saved() {
     save_like_a_checkpoint(&vm, &path);
     let loaded = DepthAnything::load_shaped(&path, tiny(), &Device::Cpu).unwrap();
     let e = loaded.disparity(&img).unwrap();
-    let worst = d.iter().zip(&e).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    let worst = d
+        .iter()
+        .zip(&e)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
     assert!(worst < 1e-5, "{worst}");
     // The size is read from the file; this one is none of the presets.
-    let err = DepthAnything::load(&path, &Device::Cpu).err().unwrap().to_string();
-    assert!(err.contains("tiny.safetensors") && err.contains("encoder width 32"), "{err}");
+    let err = DepthAnything::load(&path, &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("tiny.safetensors") && err.contains("encoder width 32"),
+        "{err}"
+    );
 }
 
 #[test]
 fn bad_files_are_refused_naming_them() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("none.safetensors");
-    let err = DepthAnything::load(&missing, &Device::Cpu).err().unwrap().to_string();
-    assert!(err.contains("none.safetensors") && err.contains("no such file"), "{err}");
+    let err = DepthAnything::load(&missing, &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("none.safetensors") && err.contains("no such file"),
+        "{err}"
+    );
     let other = dir.path().join("other.safetensors");
-    let t = HashMap::from([("x".to_string(), Tensor::zeros(3, DType::F32, &Device::Cpu).unwrap())]);
+    let t = HashMap::from([(
+        "x".to_string(),
+        Tensor::zeros(3, DType::F32, &Device::Cpu).unwrap(),
+    )]);
     candle_core::safetensors::save(&t, &other).unwrap();
-    let err = DepthAnything::load(&other, &Device::Cpu).err().unwrap().to_string();
-    assert!(err.contains("other.safetensors") && err.contains("cls_token"), "{err}");
+    let err = DepthAnything::load(&other, &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("other.safetensors") && err.contains("cls_token"),
+        "{err}"
+    );
     let garbage = dir.path().join("garbage.safetensors");
     std::fs::write(&garbage, b"not a safetensors file").unwrap();
-    let err = DepthAnything::load(&garbage, &Device::Cpu).err().unwrap().to_string();
+    let err = DepthAnything::load(&garbage, &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("garbage.safetensors"), "{err}");
     // A checkpoint of another shape does not fit.
     let (_, vm) = random(tiny());
@@ -92,14 +124,23 @@ fn bad_files_are_refused_naming_them() {
     save_like_a_checkpoint(&vm, &path);
     let mut wrong = tiny();
     wrong.features = 24;
-    let err = DepthAnything::load_shaped(&path, wrong, &Device::Cpu).err().unwrap().to_string();
+    let err = DepthAnything::load_shaped(&path, wrong, &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("do not fit"), "{err}");
 }
 
 #[test]
 fn the_small_preset_builds_and_runs() {
-    assert_eq!(DepthAnythingShape::for_embed_dim(384), Some(DepthAnythingShape::small()));
-    assert_eq!(DepthAnythingShape::for_embed_dim(1024), Some(DepthAnythingShape::large()));
+    assert_eq!(
+        DepthAnythingShape::for_embed_dim(384),
+        Some(DepthAnythingShape::small())
+    );
+    assert_eq!(
+        DepthAnythingShape::for_embed_dim(1024),
+        Some(DepthAnythingShape::large())
+    );
     let (model, _) = random(DepthAnythingShape::small());
     let d = model.disparity(&image(40, 30)).unwrap();
     assert_eq!(d.len(), 40 * 30);

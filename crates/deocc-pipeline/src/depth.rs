@@ -248,10 +248,10 @@ impl DepthFillOptions {
         if !(self.min_measured_fraction > 0.0 && self.min_measured_fraction <= 1.0) {
             return bad("min_measured_fraction", "must be in (0, 1]");
         }
-        if !(self.max_relative_residual > 0.0) {
+        if self.max_relative_residual.is_nan() || self.max_relative_residual <= 0.0 {
             return bad("max_relative_residual", "must be positive");
         }
-        if !(self.max_depth_factor >= 1.0) {
+        if self.max_depth_factor.is_nan() || self.max_depth_factor < 1.0 {
             return bad("max_depth_factor", "must be at least 1");
         }
         if self.max_fit_samples < 100 {
@@ -622,7 +622,10 @@ mod tests {
             }
         }
         // Only the holes on the box's edge take the wrong side.
-        assert!(on_surface as f32 > 0.9 * filled.len() as f32, "{on_surface}");
+        assert!(
+            on_surface as f32 > 0.9 * filled.len() as f32,
+            "{on_surface}"
+        );
         // Across an edge the nearer side by default, the farther on request.
         let edge = |side| {
             let mut f = frame_with_holes(|u, v| (28..32).contains(&u) && v == 30);
@@ -684,7 +687,11 @@ mod tests {
             .filter(|&&(u, v, z)| (z - truth(u, v)).abs() < 0.005 * truth(u, v))
             .count();
         // Every 11th pixel carries a wrong estimate; the rest land on the truth.
-        assert!(good as f32 >= 0.88 * filled.len() as f32, "{good} of {}", filled.len());
+        assert!(
+            good as f32 >= 0.88 * filled.len() as f32,
+            "{good} of {}",
+            filled.len()
+        );
     }
 
     #[test]
@@ -704,7 +711,10 @@ mod tests {
         let mut f = frame_with_holes(|u, v| u > 5 || v > 5);
         let e = fill_depth(&mut f, &AffineDisparity, &DepthFillOptions::default()).unwrap_err();
         let msg = e.to_string();
-        assert!(msg.contains("frame f0") && msg.contains("36 measured"), "{msg}");
+        assert!(
+            msg.contains("frame f0") && msg.contains("36 measured"),
+            "{msg}"
+        );
     }
 
     #[test]
