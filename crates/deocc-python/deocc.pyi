@@ -75,7 +75,9 @@ def run(
 
     options: pipeline options (the fields of `deocc run --options`); completer: "gldot",
     "rules" or a chain, default "gldot,rules" as `deocc run`; weights: a model folder (default the built-in model);
-    segment: ignore given instance maps and segment every frame.
+    segment: ignore given instance maps and segment every frame. To fill the depth the sensor
+    did not measure first (small holes, from their measured neighbours): options
+    {"fill_depth_max_gap_px": 8}; the report's "depth_fill" says what was filled per frame.
     """
 
 def read_scene(path: str) -> Tuple[List[Frame], List[int]]:

@@ -129,9 +129,10 @@ fn shard(a: &BatchArgs) -> Result<(usize, usize)> {
 pub fn batch(a: BatchArgs) -> Result<()> {
     let scenes = read_manifest(&a.manifest)?;
     let (index, count) = shard(&a)?;
-    let opts = a.pipeline.options()?;
+    let mut opts = a.pipeline.options()?;
+    a.depth.apply(&mut opts);
     let chain = crate::completers::chain(&a.completers)?;
-    let depth = a.depth.source()?;
+    let depth = a.depth.model()?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("{}: cannot create the output folder", a.out.display()))?;
     let summary_path = a.out.join(format!("summary-{index}-of-{count}.jsonl"));
@@ -166,7 +167,9 @@ pub fn batch(a: BatchArgs) -> Result<()> {
                 &out,
                 &chain,
                 &opts,
-                depth.as_ref(),
+                depth
+                    .as_ref()
+                    .map(|d| d as &dyn deocc_pipeline::depth::DepthSource),
                 a.segment,
                 false,
             ) {

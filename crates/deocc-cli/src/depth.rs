@@ -6,13 +6,15 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use deocc_pipeline::depth::{DepthSource, InterpolatedDepth, SensorDepth};
+use deocc_model::depth_anything::DepthAnything;
+use deocc_pipeline::PipelineOptions;
 
 #[derive(Args, Clone, Debug, Default)]
 pub struct DepthArgs {
     /// Fill the pixels the depth sensor did not measure before the run, from their measured
-    /// neighbours along the row and the column (linear within a surface, the farther side across
-    /// an edge; holes up to 32 px). Measured pixels never change; filled ones count as observed.
+    /// neighbours along the row and the column (linear within a surface, the near surface continued
+    /// across an edge; holes up to 8 px between two measured pixels, the option
+    /// `fill_depth_max_gap_px`). Measured pixels never change; filled ones count as observed.
     #[arg(long)]
     pub fill_depth: bool,
     /// Fill them instead from Depth Anything V2 (small, base or large, read from the file):
@@ -24,15 +26,20 @@ pub struct DepthArgs {
 }
 
 impl DepthArgs {
-    /// The depth source the flags name.
-    pub fn source(&self) -> Result<Box<dyn DepthSource>> {
-        Ok(match (&self.depth_model, self.fill_depth) {
-            (Some(path), _) => Box::new(
-                deocc_model::depth_anything::DepthAnything::load(path, &candle_core::Device::Cpu)
-                    .with_context(|| "--depth-model")?,
-            ),
-            (None, true) => Box::new(InterpolatedDepth::default()),
-            (None, false) => Box::new(SensorDepth),
-        })
+    /// The learned depth source `--depth-model` names, loaded.
+    pub fn model(&self) -> Result<Option<DepthAnything>> {
+        self.depth_model
+            .as_ref()
+            .map(|path| {
+                DepthAnything::load(path, &candle_core::Device::Cpu).context("--depth-model")
+            })
+            .transpose()
+    }
+
+    /// `--fill-depth`: the interpolation's gap limit in the options, unless they set one.
+    pub fn apply(&self, opts: &mut PipelineOptions) {
+        if self.fill_depth && opts.fill_depth_max_gap_px == 0 {
+            opts.fill_depth_max_gap_px = deocc_pipeline::depth::DEFAULT_MAX_GAP_PX;
+        }
     }
 }

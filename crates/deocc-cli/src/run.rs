@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::Args;
-use deocc_pipeline::depth::{fill_scene_depth, DepthFillOptions, DepthSource};
+use deocc_pipeline::depth::{fill_as_configured, DepthSource};
 use deocc_pipeline::instances::ensure_instances;
 use deocc_pipeline::output::{write_output, Staging};
 use deocc_pipeline::registration::register_unposed;
@@ -59,7 +59,7 @@ pub struct SceneRun {
 
 /// Runs the pipeline on the scene folder `input` (or the built-in example when `None`) and
 /// writes its output folder `out` atomically: read, fill the depth the sensor did not measure
-/// from `depth` (nothing for [`deocc_pipeline::depth::SensorDepth`]), register unposed frames, segment frames
+/// (from `depth` when given, else as the options say), register unposed frames, segment frames
 /// without instance maps (all frames with `segment`), complete, evaluate against
 /// `ground_truth.ply` if the scene has one, write, swap in.
 pub fn run_scene(
@@ -67,7 +67,7 @@ pub fn run_scene(
     out: &Path,
     chain: &deocc_completion::CompleterChain,
     opts: &PipelineOptions,
-    depth: &dyn DepthSource,
+    depth: Option<&dyn DepthSource>,
     segment: bool,
     mcap: bool,
 ) -> Result<SceneRun> {
@@ -81,7 +81,7 @@ pub fn run_scene(
         }
     };
     let mut scene = read_scene(&input_dir)?;
-    let depth_fill = fill_scene_depth(&mut scene, depth, &DepthFillOptions::default())?;
+    let depth_fill = fill_as_configured(&mut scene, opts, depth)?;
     for r in &depth_fill {
         match &r.skipped {
             None => eprintln!(
@@ -169,7 +169,8 @@ pub fn run(a: RunArgs) -> Result<()> {
     opts.validate()
         .map_err(|e| anyhow::anyhow!("{e} (from --steps / --rho / --options)"))?;
     let chain = crate::completers::chain(&a.completers)?;
-    let depth = a.depth.source()?;
+    let depth = a.depth.model()?;
+    a.depth.apply(&mut opts);
     let SceneRun {
         result,
         evaluation,
@@ -179,7 +180,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         &a.out,
         &chain,
         &opts,
-        depth.as_ref(),
+        depth.as_ref().map(|d| d as &dyn DepthSource),
         a.segment,
         a.mcap,
     )?;

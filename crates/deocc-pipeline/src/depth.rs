@@ -86,10 +86,14 @@ pub struct InterpolatedDepth {
     pub edge_side: EdgeSide,
 }
 
+/// [`InterpolatedDepth`]'s gap limit by default, and what `deocc run --fill-depth` sets: chosen
+/// on tuning scenes (`deocc eval depth --tuning`; docs/decisions.md).
+pub const DEFAULT_MAX_GAP_PX: u32 = 8;
+
 impl Default for InterpolatedDepth {
     fn default() -> Self {
         Self {
-            max_gap_px: 8,
+            max_gap_px: DEFAULT_MAX_GAP_PX,
             edge_relative: 0.03,
             edge_side: EdgeSide::Nearer,
         }
@@ -474,6 +478,26 @@ pub fn fill_depth(
     }
     frame.depth = DepthMap::new(w, h, depth)?;
     Ok(Some(report))
+}
+
+/// The depth stage as the options and the caller configure it: `source` when given (a learned
+/// one), else the interpolation when [`crate::PipelineOptions::fill_depth_max_gap_px`] is set,
+/// else nothing (the sensor's depth as it is).
+pub fn fill_as_configured(
+    scene: &mut SceneInput,
+    opts: &crate::PipelineOptions,
+    source: Option<&dyn DepthSource>,
+) -> Result<Vec<DepthFillReport>, PipelineError> {
+    let interpolated = InterpolatedDepth {
+        max_gap_px: opts.fill_depth_max_gap_px,
+        ..Default::default()
+    };
+    let source: &dyn DepthSource = match source {
+        Some(s) => s,
+        None if opts.fill_depth_max_gap_px > 0 => &interpolated,
+        None => &SensorDepth,
+    };
+    fill_scene_depth(scene, source, &DepthFillOptions::default())
 }
 
 /// [`fill_depth`] on every frame of a scene, in order.

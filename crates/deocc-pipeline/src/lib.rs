@@ -137,6 +137,7 @@ pub fn run_in_memory(
     observer: &dyn Observer,
 ) -> Result<PipelineOutput, PipelineError> {
     opts.validate()?;
+    let depth_fill = depth::fill_as_configured(&mut scene, opts, None)?;
     let registration = registration::register_unposed(&mut scene)?;
     if segment {
         for f in &mut scene.frames {
@@ -144,7 +145,9 @@ pub fn run_in_memory(
         }
     }
     instances::ensure_instances(&mut scene, segmenter)?;
-    run_observed(&scene, chain, opts, &registration, observer)
+    let mut out = run_observed(&scene, chain, opts, &registration, observer)?;
+    out.report.depth_fill = depth_fill;
+    Ok(out)
 }
 
 /// [`run`], telling `observer` of each stage; it may stop the run between stages.

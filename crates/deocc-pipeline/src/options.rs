@@ -139,6 +139,10 @@ pub struct PipelineOptions {
     /// that part of the back is in the cloud as an observation, and a generated copy of it can
     /// only be as good or worse ([`SKIP_OBSERVED_FAR_SIDE`]).
     pub skip_observed_far_side: bool,
+    /// Before anything else, fill the depth the sensor did not measure between two measured
+    /// pixels of a row or column at most this many pixels apart ([`crate::depth::InterpolatedDepth`];
+    /// 0 = off, the default; `deocc run --fill-depth` sets 8). Measured pixels never change.
+    pub fill_depth_max_gap_px: u32,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -246,6 +250,7 @@ impl Default for PipelineOptions {
             generated_max_expected_error_m: GENERATED_MAX_EXPECTED_ERROR_M,
             generated_uncertain_to_rules: GENERATED_UNCERTAIN_TO_RULES,
             skip_observed_far_side: SKIP_OBSERVED_FAR_SIDE,
+            fill_depth_max_gap_px: 0,
         }
     }
 }
@@ -315,6 +320,15 @@ impl PipelineOptions {
 
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), PipelineError> {
+        if self.fill_depth_max_gap_px > 64 {
+            return Err(bad(
+                "fill_depth_max_gap_px",
+                format!(
+                    "{} is over 64 pixels: a hole that wide is a lost object, not a gap",
+                    self.fill_depth_max_gap_px
+                ),
+            ));
+        }
         if !(1..=1000).contains(&self.steps) {
             return Err(bad("steps", format!("{} is outside 1..=1000", self.steps)));
         }

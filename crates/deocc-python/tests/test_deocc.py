@@ -136,6 +136,22 @@ class Deocc(unittest.TestCase):
         thin = deocc.run(f, completer="rules", options=opts)
         self.assertLess(len(thin["points"]), len(thick["points"]))
 
+    def test_depth_holes_are_filled_on_request(self):
+        f = small(self.frames, 2)
+        for frame in f:
+            d = np.array(frame["depth"], copy=True)
+            d[:, ::12] = 0  # a lost column every 12 pixels
+            frame["depth"] = d
+        plain = deocc.run(f, completer="rules")
+        self.assertEqual(plain["report"]["depth_fill"], [])
+        filled = deocc.run(f, completer="rules", options={"fill_depth_max_gap_px": 8})
+        fills = filled["report"]["depth_fill"]
+        self.assertEqual(len(fills), 2)
+        self.assertTrue(all(x["filled"] > 0 for x in fills))
+        self.assertGreater(len(filled["observed"]["points"]), len(plain["observed"]["points"]))
+        with self.assertRaisesRegex(ValueError, "fill_depth_max_gap_px"):
+            deocc.run(f, completer="rules", options={"fill_depth_max_gap_px": 500})
+
     def test_grasp_and_place_answer(self):
         res = deocc.run(small(self.frames, 3), completer="rules")
         placed = deocc.place(res["points"], footprint=(0.08, 0.08), height=0.12)
