@@ -57,6 +57,13 @@ pub struct DepthArgs {
     /// row of its own.
     #[arg(long, value_name = "FILE")]
     depth_model: Option<PathBuf>,
+    /// Write, for each of the first N scenes, a picture of its first view: RGB, the sensor's
+    /// depth, each source's filled depth and the true depth (DIR/depth-SEED.png).
+    #[arg(long, value_name = "DIR")]
+    pictures: Option<PathBuf>,
+    /// How many scenes get a picture with --pictures.
+    #[arg(long, default_value_t = 6, requires = "pictures")]
+    picture_scenes: usize,
 }
 
 fn depth(a: DepthArgs) -> Result<()> {
@@ -84,11 +91,36 @@ fn depth(a: DepthArgs) -> Result<()> {
     } else {
         a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len())
     };
+    if let Some(dir) = &a.pictures {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the pictures folder {}", dir.display()))?;
+    }
+    let mut write = |seed: u64, img: deocc_robot::picture::RgbImage| {
+        let Some(dir) = &a.pictures else {
+            return Ok(());
+        };
+        let path = dir.join(format!("depth-{seed}.png"));
+        img.save(&path).map_err(|e| {
+            deocc_eval::EvalError::Data(format!("cannot write {}: {e}", path.display()))
+        })
+    };
+    let picture: Option<(
+        usize,
+        &mut dyn FnMut(u64, deocc_robot::picture::RgbImage) -> _,
+    )> = if a.pictures.is_some() {
+        Some((a.picture_scenes, &mut write))
+    } else {
+        None
+    };
     let pb = crate::progress::bar(n as u64, "scenes");
-    let report =
-        deocc_eval::depth_fill::depth_fill_benchmark(&sources, n, a.views, a.tuning, &mut || {
-            pb.inc(1)
-        })?;
+    let report = deocc_eval::depth_fill::depth_fill_benchmark(
+        &sources,
+        n,
+        a.views,
+        a.tuning,
+        picture,
+        &mut || pb.inc(1),
+    )?;
     pb.finish_and_clear();
     for row in &report.rows {
         for h in &row.holes {

@@ -15,6 +15,42 @@ use deocc_pipeline::{Frame, PipelineError};
 use serde::Serialize;
 
 use crate::stats::{estimate, Estimate};
+use deocc_robot::picture::{captioned, side_by_side, Rgb, RgbImage};
+
+/// The 2nd and 98th percentiles of the positive depths, metres.
+fn depth_range(depth: &[f32]) -> (f32, f32) {
+    let mut d: Vec<f32> = depth.iter().copied().filter(|&z| z > 0.0).collect();
+    if d.is_empty() {
+        return (0.0, 1.0);
+    }
+    d.sort_unstable_by(f32::total_cmp);
+    let at = |q: f32| d[((q * (d.len() - 1) as f32) as usize).min(d.len() - 1)];
+    let (lo, hi) = (at(0.02), at(0.98));
+    (lo, hi.max(lo + 1e-3))
+}
+
+/// Depth in colour, near blue through green and yellow to far red; no depth black.
+fn depth_image(depth: &[f32], w: u32, h: u32, (lo, hi): (f32, f32)) -> RgbImage {
+    const STOPS: [[f32; 3]; 5] = [
+        [40.0, 40.0, 200.0],
+        [30.0, 170.0, 230.0],
+        [60.0, 200.0, 80.0],
+        [240.0, 220.0, 40.0],
+        [220.0, 50.0, 30.0],
+    ];
+    RgbImage::from_fn(w, h, |u, v| {
+        let z = depth[(v * w + u) as usize];
+        if z <= 0.0 {
+            return Rgb([0, 0, 0]);
+        }
+        let t = ((z - lo) / (hi - lo)).clamp(0.0, 1.0) * (STOPS.len() - 1) as f32;
+        let i = (t.floor() as usize).min(STOPS.len() - 2);
+        let f = t - i as f32;
+        Rgb(std::array::from_fn(|c| {
+            (STOPS[i][c] * (1.0 - f) + STOPS[i + 1][c] * f) as u8
+        }))
+    })
+}
 
 /// The hole kinds scored.
 pub const KINDS: [&str; 3] = ["grazing", "dropped_object", "all"];
@@ -103,11 +139,16 @@ impl DepthSource for TrueDisparity {
 /// bench-v1-like scenes of other seeds, 9,050,000 on, where settings are chosen) for `sources`
 /// (name, source; the interpolations and the true disparity are added first). `tick` after each
 /// scene.
+///
+/// With `picture = Some((n, sink))`, the first view of each of the first `n` scenes is drawn
+/// (RGB, the sensor's depth with its holes in black, each source's filled depth, the truth) and
+/// handed to `sink` with the scene's seed.
 pub fn depth_fill_benchmark(
     sources: &[(&str, &dyn DepthSource)],
     scenes: usize,
     views: usize,
     tuning: bool,
+    mut picture: Option<(usize, crate::place::PictureSink<'_>)>,
     tick: &mut dyn FnMut(),
 ) -> Result<DepthFillReport, crate::EvalError> {
     let mut preset = deocc_synth::dataset::bench_v1();
@@ -134,7 +175,7 @@ pub fn depth_fill_benchmark(
     ];
     names.extend(sources.iter().map(|(n, _)| n.to_string()));
     let mut frames_total = 0usize;
-    for &seed in &preset.seeds[..n] {
+    for (scene_index, &seed) in preset.seeds[..n].iter().enumerate() {
         let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         let mut scene = rendered.scene_input();
         let nv = views.min(scene.frames.len());
@@ -179,6 +220,22 @@ pub fn depth_fill_benchmark(
         };
         let mut all: Vec<&dyn DepthSource> = vec![&interpolated, &farther, &oracle];
         all.extend(sources.iter().map(|(_, s)| *s));
+        let draw = picture.as_ref().is_some_and(|(k, _)| scene_index < *k);
+        let mut panels = Vec::new();
+        if draw {
+            let f = &scene.frames[0];
+            let (w, h) = (f.depth.width(), f.depth.height());
+            let range = depth_range(&truth[0]);
+            panels.push(captioned(&f.rgb, "rgb"));
+            panels.push(captioned(
+                &depth_image(f.depth.data(), w, h, range),
+                "sensor (black: no depth)",
+            ));
+            panels.push(captioned(
+                &depth_image(&truth[0], w, h, range),
+                "true depth",
+            ));
+        }
         for (r, source) in all.iter().enumerate() {
             let mut t = [Tally::default(); 3];
             for (v, frame) in scene.frames.iter().enumerate() {
@@ -191,6 +248,11 @@ pub fn depth_fill_benchmark(
                 }
                 let before = frame.depth.data();
                 let after = filled.depth.data();
+                if draw && v == 0 && r != 2 {
+                    let (w, h) = (frame.depth.width(), frame.depth.height());
+                    let img = depth_image(after, w, h, depth_range(&truth[0]));
+                    panels.insert(panels.len() - 1, captioned(&img, &names[r]));
+                }
                 for i in 0..before.len() {
                     let z_true = truth[v][i];
                     if before[i] > 0.0 || z_true <= 0.0 {
@@ -202,6 +264,9 @@ pub fn depth_fill_benchmark(
                 }
             }
             tallies[r].push(t);
+        }
+        if let (true, Some((_, sink))) = (draw, picture.as_mut()) {
+            sink(seed, side_by_side(&panels, 4))?;
         }
         frames_total += nv;
         tick();

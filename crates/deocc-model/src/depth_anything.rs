@@ -245,34 +245,27 @@ fn read_tensors(path: &Path, device: &Device) -> Result<HashMap<String, Tensor>>
     candle_core::safetensors::load(path, device).map_err(|e| file_err(path, e))
 }
 
-fn bilinear(data: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
+/// Bilinear sample at continuous pixel `(x, y)` (clamped to the image) of a `w x h` grid read
+/// through `at(x, y)`.
+fn bilinear_with(w: usize, h: usize, x: f32, y: f32, at: impl Fn(usize, usize) -> f32) -> f32 {
     let x = x.clamp(0.0, (w - 1) as f32);
     let y = y.clamp(0.0, (h - 1) as f32);
     let (x0, y0) = (x.floor() as usize, y.floor() as usize);
     let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
     let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let at = |xx: usize, yy: usize| data[yy * w + xx];
     let top = at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx;
     let bottom = at(x0, y1) * (1.0 - fx) + at(x1, y1) * fx;
     top * (1.0 - fy) + bottom * fy
 }
 
+fn bilinear(data: &[f32], w: usize, h: usize, x: f32, y: f32) -> f32 {
+    bilinear_with(w, h, x, y, |xx, yy| data[yy * w + xx])
+}
+
 fn bilinear_rgb(img: &image::RgbImage, x: f32, y: f32) -> [f32; 3] {
     let (w, h) = (img.width() as usize, img.height() as usize);
     let raw = img.as_raw();
-    let mut out = [0f32; 3];
-    for (c, o) in out.iter_mut().enumerate() {
-        let x = x.clamp(0.0, (w - 1) as f32);
-        let y = y.clamp(0.0, (h - 1) as f32);
-        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-        let at = |xx: usize, yy: usize| raw[(yy * w + xx) * 3 + c] as f32;
-        let top = at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx;
-        let bottom = at(x0, y1) * (1.0 - fx) + at(x1, y1) * fx;
-        *o = top * (1.0 - fy) + bottom * fy;
-    }
-    out
+    std::array::from_fn(|c| bilinear_with(w, h, x, y, |xx, yy| raw[(yy * w + xx) * 3 + c] as f32))
 }
 
 impl DepthSource for DepthAnything {

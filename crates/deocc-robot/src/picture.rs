@@ -1,8 +1,7 @@
 //! Pictures a person would rather look at than read: gripper outlines over a rendered cloud and
 //! the placement map from above.
 
-use image::Rgb;
-pub use image::RgbImage;
+pub use image::{Rgb, RgbImage};
 use nalgebra::{Point3, Vector3};
 
 use crate::gripper::{Grasp, GripperConfig};
