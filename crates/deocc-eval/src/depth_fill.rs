@@ -17,6 +17,18 @@ use serde::Serialize;
 use crate::stats::{estimate, Estimate};
 use deocc_robot::picture::{captioned, side_by_side, Rgb, RgbImage};
 
+/// A picture's panel: half size (five VGA panels side by side are wider than a screen), with
+/// its caption.
+fn panel(img: &RgbImage, caption: &str) -> RgbImage {
+    let half = image::imageops::resize(
+        img,
+        img.width().div_ceil(2),
+        img.height().div_ceil(2),
+        image::imageops::FilterType::Triangle,
+    );
+    captioned(&half, caption)
+}
+
 /// The 2nd and 98th percentiles of the positive depths, metres.
 fn depth_range(depth: &[f32]) -> (f32, f32) {
     let mut d: Vec<f32> = depth.iter().copied().filter(|&z| z > 0.0).collect();
@@ -226,15 +238,12 @@ pub fn depth_fill_benchmark(
             let f = &scene.frames[0];
             let (w, h) = (f.depth.width(), f.depth.height());
             let range = depth_range(&truth[0]);
-            panels.push(captioned(&f.rgb, "rgb"));
-            panels.push(captioned(
+            panels.push(panel(&f.rgb, "rgb"));
+            panels.push(panel(
                 &depth_image(f.depth.data(), w, h, range),
                 "sensor (black: no depth)",
             ));
-            panels.push(captioned(
-                &depth_image(&truth[0], w, h, range),
-                "true depth",
-            ));
+            panels.push(panel(&depth_image(&truth[0], w, h, range), "true depth"));
         }
         for (r, source) in all.iter().enumerate() {
             let mut t = [Tally::default(); 3];
@@ -251,7 +260,7 @@ pub fn depth_fill_benchmark(
                 if draw && v == 0 && r != 2 {
                     let (w, h) = (frame.depth.width(), frame.depth.height());
                     let img = depth_image(after, w, h, depth_range(&truth[0]));
-                    panels.insert(panels.len() - 1, captioned(&img, &names[r]));
+                    panels.insert(panels.len() - 1, panel(&img, &names[r]));
                 }
                 for i in 0..before.len() {
                     let z_true = truth[v][i];
