@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::Args;
-use deocc_pipeline::depth::{fill_as_configured, DepthSource};
+use deocc_pipeline::depth::{fill_scene_depth, DepthFillOptions, DepthSource};
 use deocc_pipeline::instances::ensure_instances;
 use deocc_pipeline::output::{write_output, Staging};
 use deocc_pipeline::registration::register_unposed;
@@ -59,7 +59,7 @@ pub struct SceneRun {
 
 /// Runs the pipeline on the scene folder `input` (or the built-in example when `None`) and
 /// writes its output folder `out` atomically: read, fill the depth the sensor did not measure
-/// (from `depth` when given, else as the options say), register unposed frames, segment frames
+/// from `depth` when given (the options' interpolation runs inside the pipeline), register unposed frames, segment frames
 /// without instance maps (all frames with `segment`), complete, evaluate against
 /// `ground_truth.ply` if the scene has one, write, swap in.
 pub fn run_scene(
@@ -81,16 +81,11 @@ pub fn run_scene(
         }
     };
     let mut scene = read_scene(&input_dir)?;
-    let depth_fill = fill_as_configured(&mut scene, opts, depth)?;
-    for r in &depth_fill {
-        match &r.skipped {
-            None => eprintln!(
-                "frame {}: filled {} unmeasured depth pixels from {} ({} measured)",
-                r.frame, r.filled, r.source, r.measured
-            ),
-            Some(why) => eprintln!("frame {}: depth not filled: {why}", r.frame),
-        }
-    }
+    // A learned depth source fills first; the options' interpolation runs inside the pipeline.
+    let model_fill = match depth {
+        Some(source) => fill_scene_depth(&mut scene, source, &DepthFillOptions::default())?,
+        None => Vec::new(),
+    };
     let registration = register_unposed(&mut scene)?;
     if segment {
         for f in &mut scene.frames {
@@ -102,7 +97,17 @@ pub fn run_scene(
         eprintln!("segmented the frames with the default RGB-D segmenter: {segmented} instances across views");
     }
     let mut result = deocc_pipeline::run(&scene, chain, opts, &registration)?;
-    result.report.depth_fill = depth_fill;
+    let interpolated = std::mem::take(&mut result.report.depth_fill);
+    result.report.depth_fill = model_fill.into_iter().chain(interpolated).collect();
+    for r in &result.report.depth_fill {
+        match &r.skipped {
+            None => eprintln!(
+                "frame {}: filled {} unmeasured depth pixels from {} ({} measured)",
+                r.frame, r.filled, r.source, r.measured
+            ),
+            Some(why) => eprintln!("frame {}: depth not filled by {}: {why}", r.frame, r.source),
+        }
+    }
     let gt_path = input_dir.join("ground_truth.ply");
     let evaluation = if gt_path.exists() {
         let (gt, seen) = deocc_eval::reconstruction::read_ground_truth(&gt_path)?;

@@ -480,26 +480,6 @@ pub fn fill_depth(
     Ok(Some(report))
 }
 
-/// The depth stage as the options and the caller configure it: `source` when given (a learned
-/// one), else the interpolation when [`crate::PipelineOptions::fill_depth_max_gap_px`] is set,
-/// else nothing (the sensor's depth as it is).
-pub fn fill_as_configured(
-    scene: &mut SceneInput,
-    opts: &crate::PipelineOptions,
-    source: Option<&dyn DepthSource>,
-) -> Result<Vec<DepthFillReport>, PipelineError> {
-    let interpolated = InterpolatedDepth {
-        max_gap_px: opts.fill_depth_max_gap_px,
-        ..Default::default()
-    };
-    let source: &dyn DepthSource = match source {
-        Some(s) => s,
-        None if opts.fill_depth_max_gap_px > 0 => &interpolated,
-        None => &SensorDepth,
-    };
-    fill_scene_depth(scene, source, &DepthFillOptions::default())
-}
-
 /// [`fill_depth`] on every frame of a scene, in order.
 pub fn fill_scene_depth(
     scene: &mut SceneInput,

@@ -5,7 +5,7 @@
 //! | stage | file | function |
 //! |---|---|---|
 //! | read scene (no side effects) | `deocc_io::scene` | [`read_scene`] |
-//! | depth: fill what the sensor did not measure (optional) | [`depth`] | [`depth::fill_scene_depth`] |
+//! | depth: fill what the sensor did not measure (optional; [`run`]'s first stage with `fill_depth_max_gap_px`) | [`depth`] | [`depth::fill_scene_depth`] |
 //! | registration of pose-free input | [`registration`] | [`registration::register_unposed`] |
 //! | instances: given, segmented or mixed | [`instances`], [`segment`] | [`instances::ensure_instances`] |
 //! | reconstruction | [`reconstruct`] | [`reconstruct::reconstruct`] |
@@ -137,7 +137,6 @@ pub fn run_in_memory(
     observer: &dyn Observer,
 ) -> Result<PipelineOutput, PipelineError> {
     opts.validate()?;
-    let depth_fill = depth::fill_as_configured(&mut scene, opts, None)?;
     let registration = registration::register_unposed(&mut scene)?;
     if segment {
         for f in &mut scene.frames {
@@ -145,9 +144,7 @@ pub fn run_in_memory(
         }
     }
     instances::ensure_instances(&mut scene, segmenter)?;
-    let mut out = run_observed(&scene, chain, opts, &registration, observer)?;
-    out.report.depth_fill = depth_fill;
-    Ok(out)
+    run_observed(&scene, chain, opts, &registration, observer)
 }
 
 /// [`run`], telling `observer` of each stage; it may stop the run between stages.
@@ -161,6 +158,22 @@ pub fn run_observed(
     opts.validate()?;
     let t_all = Instant::now();
     let mut timings = StageTimings::default();
+    // The depth the sensor did not measure, filled first when the options ask for it (on a copy:
+    // the caller's frames stay as they were read).
+    let filled_scene;
+    let mut depth_fill = Vec::new();
+    let scene = if opts.fill_depth_max_gap_px > 0 {
+        let mut s = scene.clone();
+        let source = depth::InterpolatedDepth {
+            max_gap_px: opts.fill_depth_max_gap_px,
+            ..Default::default()
+        };
+        depth_fill = depth::fill_scene_depth(&mut s, &source, &depth::DepthFillOptions::default())?;
+        filled_scene = s;
+        &filled_scene
+    } else {
+        scene
+    };
     if scene.frames.iter().any(|f| f.instances.is_none()) {
         return Err(PipelineError::input(
             scene.dir.join("instances"),
@@ -441,7 +454,7 @@ pub fn run_observed(
     enter(observer, 6)?;
     timings.total_s = t_all.elapsed().as_secs_f64();
 
-    let report = make_report(
+    let mut report = make_report(
         scene,
         chain,
         opts,
@@ -457,6 +470,7 @@ pub fn run_observed(
         &revolved,
         &boxed,
     );
+    report.depth_fill = depth_fill;
     Ok(PipelineOutput {
         observed,
         completed,

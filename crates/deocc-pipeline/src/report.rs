@@ -121,8 +121,10 @@ pub struct RunReport {
     pub registration: Vec<FrameRegistration>,
     /// The process's peak resident memory when the run ended (Linux `VmHWM`), MiB.
     pub peak_rss_mib: Option<f64>,
-    /// What the depth stage filled in each frame before the run ([`crate::depth::fill_depth`];
-    /// empty when the sensor's depth was used as it is). Set by the caller that ran it.
+    /// What the depth stage filled in each frame ([`crate::depth::fill_depth`]): a learned
+    /// source the caller ran first, then the interpolation of
+    /// [`PipelineOptions::fill_depth_max_gap_px`]; empty when the sensor's depth was used as it
+    /// is.
     pub depth_fill: Vec<crate::depth::DepthFillReport>,
 }
 

@@ -1225,3 +1225,47 @@ fn the_rules_far_side_follows_its_silhouette_cap() {
     let thin = rules_points(placing);
     assert!(thin < off, "{thin} vs {off}");
 }
+
+/// With `fill_depth_max_gap_px`, the run fills the sensor's small holes before anything else
+/// (on a copy: the caller's frames stay as they were) and reports it; without it, nothing.
+#[test]
+fn the_run_fills_small_depth_holes_when_asked() {
+    let rendered = small_scene();
+    let mut scene = rendered.scene_input();
+    for f in &mut scene.frames {
+        let (w, h) = (f.depth.width(), f.depth.height());
+        let mut d = f.depth.clone().into_data();
+        for (i, z) in d.iter_mut().enumerate() {
+            if (i % w as usize) % 10 == 0 {
+                *z = 0.0; // a lost column every 10 pixels
+            }
+        }
+        f.depth = deocc_geometry::DepthMap::new(w, h, d).unwrap();
+    }
+    let before: Vec<usize> = scene.frames.iter().map(|f| f.depth.valid_count()).collect();
+    let plain = run_plain_stub(&scene, &completion_only());
+    assert!(plain.report.depth_fill.is_empty());
+    let filled = run_plain_stub(
+        &scene,
+        &PipelineOptions {
+            fill_depth_max_gap_px: 8,
+            ..completion_only()
+        },
+    );
+    let fills = &filled.report.depth_fill;
+    assert_eq!(fills.len(), scene.frames.len());
+    for (r, &n) in fills.iter().zip(&before) {
+        assert_eq!(r.measured, n);
+        assert!(r.filled > 0 && r.skipped.is_none(), "{r:?}");
+    }
+    let after: Vec<usize> = scene.frames.iter().map(|f| f.depth.valid_count()).collect();
+    assert_eq!(before, after, "the caller's frames are not changed");
+    assert!(filled.report.points_observed > plain.report.points_observed);
+    let e = PipelineOptions {
+        fill_depth_max_gap_px: 65,
+        ..Default::default()
+    }
+    .validate()
+    .unwrap_err();
+    assert!(e.to_string().contains("fill_depth_max_gap_px"), "{e}");
+}
