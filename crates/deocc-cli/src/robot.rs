@@ -26,6 +26,8 @@ pub struct SceneArgs {
     out: Option<PathBuf>,
     #[command(flatten)]
     completers: CompleterArgs,
+    #[command(flatten)]
+    depth: crate::depth::DepthArgs,
     /// Plan on the observed points only (no completion, no plane fill).
     #[arg(long)]
     observed: bool,
@@ -35,6 +37,19 @@ pub struct SceneArgs {
 /// and how many frames it has.
 fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<(PointCloud, Camera, usize)> {
     let mut scene = read_scene(&a.scene)?;
+    // The depth the sensor did not measure: a learned source first, the interpolation inside
+    // the run (`--fill-depth`).
+    let mut fills = match a.depth.model()? {
+        Some(model) => deocc_pipeline::depth::fill_scene_depth(
+            &mut scene,
+            &model,
+            &deocc_pipeline::depth::DepthFillOptions::default(),
+        )?,
+        None => Vec::new(),
+    };
+    let mut options = options.clone();
+    a.depth.apply(&mut options);
+    let options = &options;
     let registration = register_unposed(&mut scene)?;
     ensure_instances(&mut scene, &ConvexitySegmenter::default())?;
     let chain = if a.observed {
@@ -43,6 +58,8 @@ fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<(PointCloud, Ca
         crate::completers::chain(&a.completers)?
     };
     let out = deocc_pipeline::run(&scene, &chain, options, &registration)?;
+    fills.extend(out.report.depth_fill.iter().cloned());
+    crate::run::print_depth_fill(&fills);
     let camera = scene.frames[0].camera;
     let frames = scene.frames.len();
     Ok((

@@ -99,15 +99,7 @@ pub fn run_scene(
     let mut result = deocc_pipeline::run(&scene, chain, opts, &registration)?;
     let interpolated = std::mem::take(&mut result.report.depth_fill);
     result.report.depth_fill = model_fill.into_iter().chain(interpolated).collect();
-    for r in &result.report.depth_fill {
-        match &r.skipped {
-            None => eprintln!(
-                "frame {}: filled {} unmeasured depth pixels from {} ({} measured)",
-                r.frame, r.filled, r.source, r.measured
-            ),
-            Some(why) => eprintln!("frame {}: depth not filled by {}: {why}", r.frame, r.source),
-        }
-    }
+    print_depth_fill(&result.report.depth_fill);
     let gt_path = input_dir.join("ground_truth.ply");
     let evaluation = if gt_path.exists() {
         let (gt, seen) = deocc_eval::reconstruction::read_ground_truth(&gt_path)?;
@@ -150,6 +142,19 @@ pub fn run_scene(
         evaluation,
         out,
     })
+}
+
+/// One line on stderr per frame the depth stage filled (or left, and why).
+pub fn print_depth_fill(fills: &[deocc_pipeline::depth::DepthFillReport]) {
+    for r in fills {
+        match &r.skipped {
+            None => eprintln!(
+                "frame {}: filled {} unmeasured depth pixels from {} ({} measured)",
+                r.frame, r.filled, r.source, r.measured
+            ),
+            Some(why) => eprintln!("frame {}: depth not filled by {}: {why}", r.frame, r.source),
+        }
+    }
 }
 
 pub fn run(a: RunArgs) -> Result<()> {

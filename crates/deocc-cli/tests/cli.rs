@@ -408,6 +408,20 @@ fn run_fills_depth_holes_and_refuses_a_missing_depth_model() {
         fills[0]["measured"].as_u64().unwrap()
     );
 
+    // The robot tasks take the same flag.
+    let o = deocc()
+        .arg("place")
+        .arg(&scene)
+        .args(["--completer", "rules", "--fill-depth"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("unmeasured depth pixels from interpolated"),
+        "{err}"
+    );
+
     let out2 = dir.path().join("out2");
     let o = deocc()
         .arg("run")
