@@ -117,6 +117,10 @@ pub struct PlaceArgs {
     /// How many scenes get a picture with --pictures.
     #[arg(long, default_value_t = 12, requires = "pictures")]
     picture_scenes: usize,
+    /// Render the scenes with the sensor model (depth noise growing with distance, no depth at
+    /// grazing angles) instead of perfect depth.
+    #[arg(long)]
+    sensor_noise: bool,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
 }
@@ -125,6 +129,10 @@ pub fn place(a: PlaceArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
     let chains = place_chains(a.weights.as_ref(), &opts)?;
     let mut preset = deocc_synth::dataset::preset(&a.preset)?;
+    if a.sensor_noise {
+        preset.config.sensor_noise = true;
+        preset.name = format!("{} with the sensor model", preset.name);
+    }
     if a.tuning {
         let first = preset.seeds[0] + 50_000;
         preset.name = format!("{} tuning scenes", preset.name);

@@ -53,6 +53,12 @@ pub struct PlaceOptions {
     pub support_tolerance_m: f32,
     pub min_support: f32,
     pub gap_m: f32,
+    /// The gap grows to this many times the surface's own depth noise when that is larger
+    /// (0 = off): in each cell, the robust spread (1.4826 x the median absolute deviation) of the
+    /// points within `support_tolerance_m` of the plane in it and its 8 neighbours, over their
+    /// median. A sensor whose noise grows with distance puts points of a far table top a
+    /// centimetre over it; they are the table, not obstacles.
+    pub gap_noise_sigmas: f32,
     /// Extra clearance above the object's height.
     pub headroom_m: f32,
     /// Surfaces up to this high over the plane block a cell (see the module docs).
@@ -78,6 +84,7 @@ impl Default for PlaceOptions {
             support_tolerance_m: 0.01,
             min_support: 0.9,
             gap_m: 0.005,
+            gap_noise_sigmas: 4.0,
             headroom_m: 0.01,
             overhead_m: 0.6,
             dilation_m: 0.01,
@@ -213,6 +220,15 @@ pub fn find_support_planes(
     Ok(planes)
 }
 
+/// The median of `v` (reordered); 0 when empty.
+fn median(v: &mut [f32]) -> f32 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
 /// A placement map over one support plane (levelled frame).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PlaceMap {
@@ -342,6 +358,43 @@ pub fn build_map_seen_from(
             .then(|| fy as usize * nx + fx as usize)
     };
     let eye = eye.map(|e| level * e).filter(|e| e.z > plane.height);
+    // The gap per cell: `gap_noise_sigmas` times the surface's noise around it (the points
+    // within `support_tolerance_m` of the plane in the cell and its 8 neighbours) where that
+    // exceeds `gap_m`. Local, because a completed cloud mixes noisy observed points with
+    // generated ones lying exactly on the plane.
+    let gap: Vec<f32> = if opts.gap_noise_sigmas > 0.0 {
+        let mut near: Vec<Vec<f32>> = vec![Vec::new(); nx * ny];
+        for p in points {
+            let p = level * p;
+            let dz = p.z - plane.height;
+            if dz.abs() <= opts.support_tolerance_m {
+                if let Some(i) = cell_of(p.x, p.y) {
+                    near[i].push(dz);
+                }
+            }
+        }
+        let mut block = Vec::new();
+        (0..nx * ny)
+            .map(|i| {
+                let (cx, cy) = ((i % nx) as isize, (i / nx) as isize);
+                block.clear();
+                for y in (cy - 1).max(0)..=(cy + 1).min(ny as isize - 1) {
+                    for x in (cx - 1).max(0)..=(cx + 1).min(nx as isize - 1) {
+                        block.extend_from_slice(&near[y as usize * nx + x as usize]);
+                    }
+                }
+                if block.len() < 3 {
+                    return opts.gap_m;
+                }
+                let centre = median(&mut block);
+                let mut dev: Vec<f32> = block.iter().map(|d| (d - centre).abs()).collect();
+                opts.gap_m
+                    .max(centre + opts.gap_noise_sigmas * 1.4826 * median(&mut dev))
+            })
+            .collect()
+    } else {
+        vec![opts.gap_m; nx * ny]
+    };
     for p in points {
         let p = level * p;
         let dz = p.z - plane.height;
@@ -359,7 +412,7 @@ pub fn build_map_seen_from(
         if dz.abs() <= opts.support_tolerance_m {
             support[i] = true;
         }
-        if dz > opts.gap_m && dz <= opts.overhead_m.max(opts.height + opts.headroom_m) {
+        if dz > gap[i] && dz <= opts.overhead_m.max(opts.height + opts.headroom_m) {
             occupied[i] = true;
         }
     }

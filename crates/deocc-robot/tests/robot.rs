@@ -425,3 +425,56 @@ fn sight_lines_to_the_floor_past_an_edge_are_seen_empty_space() {
         build_map_seen_from(&points, &plane, &opts, UnseenSpace::AsPoints, Some(&eye)).unwrap();
     assert_eq!(as_points.placeable, as_points_eye.placeable);
 }
+
+/// A table top measured with centimetre-scale depth noise is not an obstacle field: the gap over
+/// the plane grows to three times the surface's own noise, and a box 4 cm high still blocks.
+#[test]
+fn a_noisy_table_top_is_a_surface_and_a_box_on_it_still_blocks() {
+    let mut r = ChaCha8Rng::seed_from_u64(11);
+    let h = 0.7;
+    let mut points = Vec::new();
+    for i in 0..120 {
+        for j in 0..80 {
+            let (x, y) = (-0.6 + i as f32 * 0.01, -0.4 + j as f32 * 0.01);
+            for _ in 0..4 {
+                // Gaussian noise of 5 mm (Box-Muller).
+                let (a, b): (f32, f32) = (r.random_range(1e-7..1.0), r.random::<f32>());
+                let g = (-2.0 * a.ln()).sqrt() * (std::f32::consts::TAU * b).cos();
+                points.push(Point3::new(x, y, h + 0.005 * g));
+            }
+        }
+    }
+    // A box 10 x 10 x 4 cm at the table's centre: its top.
+    for i in 0..10 {
+        for j in 0..10 {
+            points.push(Point3::new(
+                -0.05 + i as f32 * 0.01,
+                -0.05 + j as f32 * 0.01,
+                h + 0.04,
+            ));
+        }
+    }
+    let plane = SupportPlane {
+        height: h,
+        bounds: [-0.6, -0.4, 0.6, 0.4],
+        points: 0,
+    };
+    let adaptive = PlaceOptions::default();
+    assert!(adaptive.gap_noise_sigmas > 0.0);
+    let fixed = PlaceOptions {
+        gap_noise_sigmas: 0.0,
+        ..PlaceOptions::default()
+    };
+    let a = build_map(&points, &plane, &adaptive, UnseenSpace::AsPoints).unwrap();
+    let f = build_map(&points, &plane, &fixed, UnseenSpace::AsPoints).unwrap();
+    let share = |m: &[bool]| m.iter().filter(|&&o| o).count() as f32 / m.len() as f32;
+    // With a fixed 5 mm gap, a noisy table is occupied nearly everywhere.
+    assert!(share(&f.occupied) > 0.4, "{}", share(&f.occupied));
+    assert!(share(&f.placeable) < 0.05);
+    // Adaptive: the box's 100 cells and few others (under 1% of the table's cells).
+    let occupied = a.occupied.iter().filter(|&&o| o).count();
+    assert!((100..=196).contains(&occupied), "{occupied}");
+    let centre = a.ny / 2 * a.nx + a.nx / 2;
+    assert!(a.occupied[centre] && !a.placeable[centre]);
+    assert!(share(&a.placeable) > 0.5, "{}", share(&a.placeable));
+}
