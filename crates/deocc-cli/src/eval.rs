@@ -91,27 +91,12 @@ fn depth(a: DepthArgs) -> Result<()> {
     } else {
         a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len())
     };
-    if let Some(dir) = &a.pictures {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create the pictures folder {}", dir.display()))?;
-    }
-    let mut write = |seed: u64, img: deocc_robot::picture::RgbImage| {
-        let Some(dir) = &a.pictures else {
-            return Ok(());
-        };
-        let path = dir.join(format!("depth-{seed}.png"));
-        img.save(&path).map_err(|e| {
-            deocc_eval::EvalError::Data(format!("cannot write {}: {e}", path.display()))
-        })
-    };
-    let picture: Option<(
-        usize,
-        &mut dyn FnMut(u64, deocc_robot::picture::RgbImage) -> _,
-    )> = if a.pictures.is_some() {
-        Some((a.picture_scenes, &mut write))
-    } else {
-        None
-    };
+    let writer = crate::report::PictureWriter::new(a.pictures.as_deref(), "depth")?;
+    let mut write = |seed, img| writer.as_ref().map_or(Ok(()), |w| w.write(seed, img));
+    let picture = writer.is_some().then_some((
+        a.picture_scenes,
+        &mut write as deocc_eval::place::PictureSink<'_>,
+    ));
     let pb = crate::progress::bar(n as u64, "scenes");
     let report = deocc_eval::depth_fill::depth_fill_benchmark(
         &sources,

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Args;
 
 #[derive(Args)]
@@ -140,27 +140,12 @@ pub fn place(a: PlaceArgs) -> Result<()> {
     }
     let n = a.scenes.min(preset.seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
-    if let Some(dir) = &a.pictures {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create the pictures folder {}", dir.display()))?;
-    }
-    let mut write = |seed: u64, img: deocc_robot::picture::RgbImage| {
-        let Some(dir) = &a.pictures else {
-            return Ok(());
-        };
-        let path = dir.join(format!("place-{seed}.png"));
-        img.save(&path).map_err(|e| {
-            deocc_eval::EvalError::Data(format!("cannot write {}: {e}", path.display()))
-        })
-    };
-    let picture: Option<(
-        usize,
-        &mut dyn FnMut(u64, deocc_robot::picture::RgbImage) -> _,
-    )> = if a.pictures.is_some() {
-        Some((a.picture_scenes, &mut write))
-    } else {
-        None
-    };
+    let writer = crate::report::PictureWriter::new(a.pictures.as_deref(), "place")?;
+    let mut write = |seed, img| writer.as_ref().map_or(Ok(()), |w| w.write(seed, img));
+    let picture = writer.is_some().then_some((
+        a.picture_scenes,
+        &mut write as deocc_eval::place::PictureSink<'_>,
+    ));
     let report =
         deocc_eval::place::place_benchmark(&preset, &chains, &opts, n, picture, &mut || pb.inc(1))?;
     pb.finish_and_clear();

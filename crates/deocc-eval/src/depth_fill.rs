@@ -114,7 +114,7 @@ pub struct DepthFillRow {
 }
 
 #[derive(Debug, Clone, Serialize)]
-pub struct DepthFillReport {
+pub struct DepthBenchmarkReport {
     pub benchmark: String,
     pub scenes: usize,
     pub views_per_scene: usize,
@@ -162,7 +162,7 @@ pub fn depth_fill_benchmark(
     tuning: bool,
     mut picture: Option<(usize, crate::place::PictureSink<'_>)>,
     tick: &mut dyn FnMut(),
-) -> Result<DepthFillReport, crate::EvalError> {
+) -> Result<DepthBenchmarkReport, crate::EvalError> {
     let mut preset = deocc_synth::dataset::bench_v1();
     preset.config.sensor_noise = true;
     if tuning {
@@ -330,7 +330,7 @@ pub fn depth_fill_benchmark(
             }
         })
         .collect();
-    Ok(DepthFillReport {
+    Ok(DepthBenchmarkReport {
         benchmark: format!(
             "{} with the sensor model and one object's depth dropped per view",
             preset.name
