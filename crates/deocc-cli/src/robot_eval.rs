@@ -19,6 +19,10 @@ pub struct GraspArgs {
     /// the planner's and the revolve stage's limits are chosen.
     #[arg(long)]
     tuning: bool,
+    /// Render the scenes with the sensor model (depth noise growing with distance, no depth at
+    /// grazing angles) instead of perfect depth.
+    #[arg(long)]
+    sensor_noise: bool,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
     /// Grasp planner settings (JSON of GraspOptions: gripper geometry, seeds, friction, ...);
@@ -32,6 +36,10 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     let chains = grasp_chains(a.weights.as_ref(), &opts)?;
     let options = crate::robot::grasp_options(a.grasp_options.as_deref())?;
     let mut preset = deocc_synth::dataset::pickup_v1();
+    if a.sensor_noise {
+        preset.config.sensor_noise = true;
+        preset.name = format!("{} with the sensor model", preset.name);
+    }
     if a.tuning {
         preset.name = format!("{} tuning scenes", preset.name);
         preset.seeds = (9_250_000..9_250_000 + a.scenes as u64).collect();
