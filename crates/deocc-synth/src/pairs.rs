@@ -30,7 +30,7 @@ use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
 use crate::generate::generate_scene;
-use crate::render::{rasterize, shade, Frame, SceneTriangles};
+use crate::render::{add_sensor_noise, rasterize, shade, Frame, SceneTriangles};
 use crate::scene::{CameraPath, Scene, SceneConfig};
 pub use deocc_io::pairs::{load_pairs, save_pairs, PairSet};
 
@@ -57,6 +57,12 @@ pub struct PairConfig {
     /// counts as hidden. Off by default, which keeps the existing splits as they were.
     #[serde(default)]
     pub edge_objects: bool,
+    /// The condition's depth as a sensor measures it (the renderer's sensor model: noise growing
+    /// with distance, no depth at grazing angles), in the crop and in the other views; a pixel
+    /// without depth is not visible, as in the pipeline's crops. The targets stay noise-free.
+    /// Off by default, which keeps the existing splits as they were.
+    #[serde(default)]
+    pub sensor_noise: bool,
 }
 
 impl Default for PairConfig {
@@ -70,8 +76,14 @@ impl Default for PairConfig {
             min_visible_fraction: 0.08,
             keep_unoccluded: 0.3,
             edge_objects: false,
+            sensor_noise: false,
         }
     }
+}
+
+/// The sensor model's seed for one render of a scene's pairs.
+fn noise_seed(scene_seed: u64, render: u64) -> u64 {
+    scene_seed.wrapping_mul(0x9E37_79B9).wrapping_add(render) ^ 0x6e6f_6973
 }
 
 /// The box (u0, v0, u1, v1) of an object's projected vertices; `None` if any is behind the camera.
@@ -126,9 +138,13 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
     let views: Vec<(Frame, Vec<u8>)> = scene
         .cameras
         .iter()
-        .map(|camera| {
-            let frame = crate::render::render_scene(camera, scene, &tris);
+        .enumerate()
+        .map(|(v, camera)| {
+            let mut frame = crate::render::render_scene(camera, scene, &tris);
             let rgb = shade(&frame, camera, scene, &tris, [0, 0, 0]).into_raw();
+            if config.sensor_noise {
+                add_sensor_noise(&mut frame, camera, &tris, noise_seed(scene.seed, v as u64));
+            }
             (frame, rgb)
         })
         .collect();
@@ -217,10 +233,21 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
                 &|_| obj.instance_id,
                 &mut back,
             );
+            // What the sensor measured of the crop (the shading stays the noise-free render's).
+            let mut sensed = full.clone();
+            if config.sensor_noise {
+                add_sensor_noise(
+                    &mut sensed,
+                    &crop,
+                    &tris,
+                    noise_seed(scene.seed, 1000 + (ci * 4096 + k) as u64),
+                );
+            }
             let visible: Vec<bool> = full
                 .instance
                 .iter()
-                .map(|&i| i == obj.instance_id)
+                .zip(&sensed.depth_m)
+                .map(|(&i, &d)| i == obj.instance_id && d > 0.0)
                 .collect();
             let amodal: Vec<bool> = alone.instance.iter().map(|&i| i != 0).collect();
             let (vis_px, amo_px) = (
@@ -240,7 +267,7 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             let m = median(
                 (0..n)
                     .filter(|&i| visible[i])
-                    .map(|i| full.depth_m[i])
+                    .map(|i| sensed.depth_m[i])
                     .collect(),
             );
             let s = crop_side * m / camera.intrinsics.fx();
@@ -250,7 +277,7 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             out.whole_rgb.extend_from_slice(whole.as_raw());
             out.visible_mask.extend(visible.iter().map(|&b| b as u8));
             out.amodal_mask.extend(amodal.iter().map(|&b| b as u8));
-            out.scene_depth.extend(full.depth_m.iter().map(|&d| {
+            out.scene_depth.extend(sensed.depth_m.iter().map(|&d| {
                 if d > 0.0 {
                     ((d - m) / s).clamp(-1.0, 1.0)
                 } else {
@@ -259,7 +286,7 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             }));
             out.visible_depth.extend((0..n).map(|i| {
                 if visible[i] {
-                    (full.depth_m[i] - m) / s
+                    (sensed.depth_m[i] - m) / s
                 } else {
                     0.0
                 }

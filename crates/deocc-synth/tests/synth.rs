@@ -565,3 +565,51 @@ fn edge_objects_make_pairs_blank_outside_the_image() {
         "some object goes on past the image's edge"
     );
 }
+
+/// With `sensor_noise`, the condition's depth is what a sensor measures (rougher than the
+/// render) while the targets stay the noise-free render's; the pairs are as deterministic as the
+/// noise-free ones.
+#[test]
+fn sensor_noise_pairs_carry_a_noisy_condition_and_clean_targets() {
+    use deocc_synth::pairs::{split_scene_pairs, Split};
+    let noisy = PairConfig {
+        sensor_noise: true,
+        ..PairConfig::default()
+    };
+    let plain = PairConfig::default();
+    let (mut roughness_plain, mut roughness_noisy) = (0.0f64, 0.0f64);
+    for scene in 0..3 {
+        let a = split_scene_pairs(Split::Val, scene, &plain).unwrap();
+        let b = split_scene_pairs(Split::Val, scene, &noisy).unwrap();
+        let again = split_scene_pairs(Split::Val, scene, &noisy).unwrap();
+        assert_eq!(b.scene_depth, again.scene_depth, "deterministic");
+        assert!(!b.is_empty());
+        // Roughness: mean |difference| of horizontally adjacent visible depths, per pair's
+        // crop width (the relative depth's unit), over the object's own pixels.
+        let rough = |s: &deocc_io::pairs::PairSet| {
+            let (r, px) = (s.resolution as usize, s.pixels());
+            let (mut sum, mut n) = (0.0f64, 0usize);
+            for k in 0..s.len() {
+                for p in 0..px - 1 {
+                    let (i, j) = (k * px + p, k * px + p + 1);
+                    if p % r != r - 1 && s.visible_mask[i] > 0 && s.visible_mask[j] > 0 {
+                        sum += (s.visible_depth[i] - s.visible_depth[j]).abs() as f64;
+                        n += 1;
+                    }
+                }
+            }
+            sum / n.max(1) as f64
+        };
+        roughness_plain += rough(&a);
+        roughness_noisy += rough(&b);
+        // The targets are the noise-free render's: every visible pixel lies in the amodal mask.
+        let px = b.pixels();
+        for i in 0..b.len() * px {
+            assert!(b.visible_mask[i] == 0 || b.amodal_mask[i] > 0);
+        }
+    }
+    assert!(
+        roughness_noisy > 1.2 * roughness_plain,
+        "{roughness_noisy} against {roughness_plain}"
+    );
+}
