@@ -69,7 +69,11 @@ fn weighted_line(x: &[f64], y: &[f64], w: &[f64]) -> Option<(f64, f64)> {
     Some((alpha, my - alpha * mx))
 }
 
-fn median(v: &mut [f64]) -> f64 {
+/// The median of `v` (reordered; the upper one of an even count), NaN when `v` is empty.
+pub fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
     let mid = v.len() / 2;
     v.select_nth_unstable_by(mid, f64::total_cmp);
     v[mid]

@@ -17,7 +17,7 @@
 //! learned ones handed in by the caller (`deocc_model::depth_anything::DepthAnything`), as the
 //! completer is.
 
-use deocc_geometry::robust::{huber_affine_fit, AffineFit, HuberOptions};
+use deocc_geometry::robust::{huber_affine_fit, median, AffineFit, HuberOptions};
 use deocc_geometry::DepthMap;
 use deocc_io::scene::{Frame, SceneInput};
 use serde::{Deserialize, Serialize};
@@ -311,15 +311,23 @@ fn robust_affine_fit(x: &[f32], y: &[f32]) -> deocc_geometry::Result<AffineFit> 
             "the estimate has no spread over the measured pixels".into(),
         ));
     }
-    let alpha = median(slopes);
+    let alpha = median(&mut slopes);
     let beta = median(
-        x.iter()
+        &mut x
+            .iter()
             .zip(y)
             .map(|(&a, &b)| b as f64 - alpha * a as f64)
-            .collect(),
+            .collect::<Vec<_>>(),
     );
     let residual = |a: f32, b: f32| (b as f64 - (alpha * a as f64 + beta)).abs();
-    let spread = 1.4826 * median(x.iter().zip(y).map(|(&a, &b)| residual(a, b)).collect());
+    let spread = 1.4826
+        * median(
+            &mut x
+                .iter()
+                .zip(y)
+                .map(|(&a, &b)| residual(a, b))
+                .collect::<Vec<_>>(),
+        );
     let keep = (3.0 * spread).max(1e-9 * beta.abs().max(1.0));
     let (xi, yi): (Vec<f32>, Vec<f32>) = x
         .iter()
@@ -337,15 +345,6 @@ fn robust_affine_fit(x: &[f32], y: &[f32]) -> deocc_geometry::Result<AffineFit> 
         });
     }
     huber_affine_fit(&xi, &yi, &HuberOptions::default())
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mid = v.len() / 2;
-    v.select_nth_unstable_by(mid, f64::total_cmp);
-    v[mid]
 }
 
 /// Fills the frame's unmeasured pixels from `source` (see the module documentation). Returns
@@ -435,13 +434,14 @@ pub fn fill_depth(
         };
         report.alpha = fit.alpha;
         report.beta = fit.beta;
-        let typical = median(y.iter().map(|&v| v as f64).collect());
+        let typical = median(&mut y.iter().map(|&v| v as f64).collect::<Vec<_>>());
         let spread = 1.4826
             * median(
-                x.iter()
+                &mut x
+                    .iter()
                     .zip(&y)
                     .map(|(&a, &b)| (b as f64 - fit.apply(a as f64)).abs())
-                    .collect(),
+                    .collect::<Vec<_>>(),
             );
         report.relative_residual = spread / typical.max(1e-12);
         if report.relative_residual > opts.max_relative_residual as f64 {

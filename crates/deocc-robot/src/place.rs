@@ -363,16 +363,32 @@ pub fn build_map_seen_from(
     // exceeds `gap_m`. Local, because a completed cloud mixes noisy observed points with
     // generated ones lying exactly on the plane.
     let gap: Vec<f32> = if opts.gap_noise_sigmas > 0.0 {
-        let mut near: Vec<Vec<f32>> = vec![Vec::new(); nx * ny];
-        for p in points {
-            let p = level * p;
-            let dz = p.z - plane.height;
-            if dz.abs() <= opts.support_tolerance_m {
-                if let Some(i) = cell_of(p.x, p.y) {
-                    near[i].push(dz);
-                }
-            }
+        // The points within the tolerance, grouped by cell (counting sort: one flat array and
+        // an offset per cell, not a vector per cell).
+        let near_points: Vec<(usize, f32)> = points
+            .iter()
+            .filter_map(|p| {
+                let p = level * p;
+                let dz = p.z - plane.height;
+                (dz.abs() <= opts.support_tolerance_m)
+                    .then(|| cell_of(p.x, p.y).map(|i| (i, dz)))
+                    .flatten()
+            })
+            .collect();
+        let mut start = vec![0u32; nx * ny + 1];
+        for &(i, _) in &near_points {
+            start[i + 1] += 1;
         }
+        for i in 0..nx * ny {
+            start[i + 1] += start[i];
+        }
+        let mut next = start.clone();
+        let mut flat = vec![0f32; near_points.len()];
+        for &(i, dz) in &near_points {
+            flat[next[i] as usize] = dz;
+            next[i] += 1;
+        }
+        let near = |i: usize| &flat[start[i] as usize..start[i + 1] as usize];
         let mut block = Vec::new();
         (0..nx * ny)
             .map(|i| {
@@ -380,7 +396,7 @@ pub fn build_map_seen_from(
                 block.clear();
                 for y in (cy - 1).max(0)..=(cy + 1).min(ny as isize - 1) {
                     for x in (cx - 1).max(0)..=(cx + 1).min(nx as isize - 1) {
-                        block.extend_from_slice(&near[y as usize * nx + x as usize]);
+                        block.extend_from_slice(near(y as usize * nx + x as usize));
                     }
                 }
                 if block.len() < 3 {
