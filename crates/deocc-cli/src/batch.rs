@@ -158,7 +158,7 @@ pub fn batch(a: BatchArgs) -> Result<()> {
             points_generated: None,
             objects_completed: None,
         };
-        if out.join(deocc_pipeline::output::REPORT_FILE).is_file() {
+        if deocc_pipeline::output::is_complete_output(&out) {
             line.status = "skipped";
             skipped += 1;
         } else {

@@ -24,6 +24,31 @@ pub enum BenchCommand {
     /// rounds), serialisation share, a 1M-point cloud's encode + decode, and a load test
     /// (concurrent clients, every status counted, p50 / p99 latency, peak RSS).
     Service(ServiceArgs),
+    /// `deocc serve` (this binary, as a child process) under normal traffic mixed with abuse on
+    /// loopback: stalled uploads, slow readers, cancels, 1 ms deadlines, oversized and malformed
+    /// messages, pathological options. Checks every normal answer, the server's peak memory,
+    /// Health back at zero, and that SIGTERM ends it within the grace period; exits non-zero if
+    /// any failed.
+    Soak(SoakArgs),
+}
+
+#[derive(Args)]
+pub struct SoakArgs {
+    #[arg(long, default_value = "bench/soak.json")]
+    json: PathBuf,
+    /// How long the traffic runs, seconds.
+    #[arg(long, default_value_t = 600.0)]
+    seconds: f64,
+    /// The server's completers.
+    #[arg(long, default_value = "gldot,rules")]
+    completer: String,
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    clients: u32,
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(0..=64))]
+    abusers: u32,
+    /// The bound on the server's peak resident memory, MiB.
+    #[arg(long, default_value_t = 1536.0)]
+    max_rss_mib: f64,
 }
 
 #[derive(Args)]
@@ -147,6 +172,38 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             )?;
             pb.finish_and_clear();
             crate::report::write_report(&a.json, &report)?;
+        }
+        BenchCommand::Soak(a) => {
+            let exe = std::env::current_exe()?;
+            eprintln!(
+                "soak: {} s of traffic against deocc serve ({}), {} clients, {} abusers",
+                a.seconds, a.completer, a.clients, a.abusers
+            );
+            let report = bench::soak::soak_bench(
+                &exe,
+                &bench::soak::SoakOptions {
+                    seconds: a.seconds,
+                    completer: a.completer,
+                    clients: a.clients as usize,
+                    abusers: a.abusers as usize,
+                    max_rss_mib: a.max_rss_mib,
+                },
+            )?;
+            crate::report::write_report(&a.json, &report)?;
+            eprintln!(
+                "normal: {} correct, {} busy, {} lost or wrong; peak RSS {:.0} MiB (bound {:.0}); \
+                 Health at zero: {}; SIGTERM exit {:.2} s",
+                report.normal_correct,
+                report.normal_busy,
+                report.normal_lost_or_wrong,
+                report.peak_rss_mib,
+                report.max_rss_mib,
+                report.health_back_to_zero,
+                report.sigterm_exit_s
+            );
+            if !report.passed {
+                anyhow::bail!("the soak failed; see {}", a.json.display());
+            }
         }
         BenchCommand::Model(a) => {
             let report = bench::model::model_bench(&bench::model::ModelBenchOptions {

@@ -34,6 +34,21 @@ pub fn chain(a: &CompleterArgs) -> Result<CompleterChain> {
         .map_err(|e| anyhow::anyhow!("--completer: {e}"))
 }
 
+/// Says so when `--steps` cannot change the answer: no completer of `chain` samples in steps
+/// (the shipped GL-DoT reads its mean head in one forward pass). Returns whether it warned.
+pub fn warn_unused_steps(chain: &CompleterChain, steps: usize) -> bool {
+    if chain.links().iter().any(|c| c.uses_steps()) {
+        return false;
+    }
+    let names: Vec<&str> = chain.links().iter().map(|c| c.name()).collect();
+    eprintln!(
+        "warning: --steps {steps} has no effect: {} answer in one pass (the shipped GL-DoT \
+         reads its mean head at the first step)",
+        names.join(", ")
+    );
+    true
+}
+
 /// Which completers and which weights `a` names, for a server's Health answer and logs: e.g.
 /// `gldot,rules (built-in gldot-small, fnv64 1f3a...)`.
 pub fn describe_model(a: &CompleterArgs) -> String {

@@ -103,7 +103,8 @@ pub fn grasp_options(path: Option<&Path>) -> Result<GraspOptions> {
         Some(p) => {
             let text =
                 std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?
+            deocc_io::cameras::options_from_json(&text)
+                .map_err(|e| anyhow::anyhow!("{}: grasp options: {e}", p.display()))?
         }
         None => GraspOptions::default(),
     };
@@ -205,8 +206,8 @@ pub enum Unseen {
 pub struct PlaceArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Object footprint, width and depth in metres.
-    #[arg(long, value_delimiter = ',', default_values_t = [0.08, 0.08])]
+    /// Object footprint: width and depth in metres, comma-separated (W,D; no space).
+    #[arg(long, value_delimiter = ',', default_value = "0.08,0.08")]
     footprint: Vec<f32>,
     /// Object height in metres.
     #[arg(long, default_value_t = 0.12)]
@@ -215,12 +216,21 @@ pub struct PlaceArgs {
     /// (as the points say). Default: as-points for completed clouds, free with --observed.
     #[arg(long, value_enum)]
     unseen: Option<Unseen>,
-    /// Gravity's opposite in the scene's world frame.
-    #[arg(long, value_delimiter = ',', default_values_t = [0.0, 0.0, 1.0])]
+    /// Gravity's opposite in the scene's world frame, comma-separated (X,Y,Z; no space).
+    #[arg(long, value_delimiter = ',', default_value = "0,0,1")]
     up: Vec<f32>,
 }
 
 pub fn place(a: PlaceArgs) -> Result<()> {
+    // `--footprint 0.1 0.1 SCENE` reads the second size as the scene: say what was meant.
+    let scene = &a.scene.scene;
+    if !scene.exists() && scene.to_str().is_some_and(|s| s.parse::<f32>().is_ok()) {
+        bail!(
+            "{} is a number, not a scene folder: --footprint and --up take comma-separated \
+             values without spaces (--footprint 0.1,0.1 --up 0,0,1)",
+            scene.display()
+        );
+    }
     if a.footprint.len() != 2 {
         bail!(
             "--footprint takes two sizes, W,D in metres (got {:?})",

@@ -179,6 +179,9 @@ pub fn run(a: RunArgs) -> Result<()> {
     opts.validate()
         .map_err(|e| anyhow::anyhow!("{e} (from --steps / --rho / --options)"))?;
     let chain = crate::completers::chain(&a.completers)?;
+    if let Some(s) = a.steps {
+        crate::completers::warn_unused_steps(&chain, s);
+    }
     let depth = a.depth.model()?;
     a.depth.apply(&mut opts);
     let SceneRun {

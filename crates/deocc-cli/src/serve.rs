@@ -87,12 +87,18 @@ pub fn serve(a: ServeArgs) -> Result<()> {
         },
         max_deadline: Duration::from_secs_f64(a.max_deadline_s),
         token,
+        // Bodies arriving at once may hold two of the largest messages, or the default.
+        uploads: deocc_service::guard::UploadLimits {
+            max_upload_bytes: (a.max_message_mib << 21)
+                .max(deocc_service::guard::UploadLimits::default().max_upload_bytes),
+            ..Default::default()
+        },
     };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()?;
-    rt.block_on(async move {
+    let served = rt.block_on(async move {
         let listener = tokio::net::TcpListener::bind(addr)
             .await
             .with_context(|| format!("--listen {addr}: cannot listen"))?;
@@ -105,7 +111,12 @@ pub fn serve(a: ServeArgs) -> Result<()> {
         );
         let service = DeoccService::new(chain, model, config);
         serve_on(service, listener, shutdown_signal()).await?;
-        eprintln!("stopped");
         anyhow::Ok(())
-    })
+    });
+    // A pipeline run still going on the blocking pool would keep the runtime's drop waiting
+    // (the process lived on after SIGTERM): the grace period has passed, so stop now.
+    rt.shutdown_timeout(Duration::from_millis(500));
+    served?;
+    eprintln!("stopped");
+    Ok(())
 }

@@ -374,3 +374,104 @@ fn two_hundred_views_run_under_two_gigabytes() {
     let peak = report["peak_rss_mib"].as_f64().unwrap();
     assert!(peak < 2048.0, "peak RSS {peak:.0} MiB");
 }
+
+/// Round two of the hostile user (each case was mishandled before): options files that are
+/// arrays, grasp settings that hung or lied, `--footprint` with a space, and `--steps` that the
+/// shipped model ignores.
+#[test]
+fn round_two_options_cameras_and_words() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path());
+    let opts = dir.path().join("o.json");
+    for (text, want) in [
+        ("[]", "expected a JSON object"),
+        ("[4]", "expected a JSON object"),
+        (r#"{"approaches": 1000000000000}"#, "approaches"),
+        (
+            r#"{"normal_neighbours": 18446744073709551615}"#,
+            "normal_neighbours",
+        ),
+        (r#"{"voxel_m": 1e-30}"#, "voxel_m"),
+        (r#"{"depths": [-1]}"#, "depths[0]"),
+    ] {
+        std::fs::write(&opts, text).unwrap();
+        let o = deocc()
+            .args(["grasp", "--target", "1", "--options"])
+            .arg(&opts)
+            .arg(&scene)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{text}: accepted");
+        assert!(err.contains(want), "{text}: {err}");
+    }
+    // Pipeline options files too.
+    std::fs::write(&opts, "[]").unwrap();
+    let o = deocc()
+        .arg("run")
+        .arg(&scene)
+        .arg("--out")
+        .arg(dir.path().join("never"))
+        .arg("--options")
+        .arg(&opts)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("expected a JSON object"));
+    assert!(!dir.path().join("never").exists());
+
+    // `--footprint 0.1 0.1 SCENE`: the second size was read as the scene.
+    let o = deocc()
+        .args(["place", "--footprint", "0.1", "0.1"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("comma-separated"), "{err}");
+    let help = deocc().args(["place", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(help.contains("[default: 0.08,0.08]"), "{help}");
+
+    // --steps with the shipped model: said to have no effect.
+    let o = deocc()
+        .arg("run")
+        .arg(&scene)
+        .arg("--out")
+        .arg(dir.path().join("steps"))
+        .args(["--steps", "8"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--steps 8 has no effect"), "{err}");
+}
+
+/// `deocc bench soak` at smoke size: a short run of normal traffic and abuse against the real
+/// server, which must pass every check (the 10-minute run is `bench/soak.json`).
+#[test]
+fn soak_bench_smoke() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("soak.json");
+    let o = deocc()
+        .args(["bench", "soak", "--seconds", "12", "--completer", "rules"])
+        .args(["--clients", "1", "--abusers", "3", "--json"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap_or_default())
+            .unwrap_or_default();
+    assert!(
+        o.status.success(),
+        "{}\n{report:#}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(report["passed"], true, "{report:#}");
+    assert!(report["normal_correct"].as_u64().unwrap() > 0, "{report:#}");
+    assert!(
+        report["abuse"].as_object().unwrap().len() >= 3,
+        "{report:#}"
+    );
+    assert!(report["sigterm_exit_s"].as_f64().unwrap() <= 30.0);
+    assert!(report["machine"]["cores"].as_u64().unwrap() >= 1);
+}

@@ -66,6 +66,12 @@ pub trait Completer: Send + Sync {
     fn decline(&self, _condition: &CropCondition) -> Option<String> {
         None
     }
+    /// Whether [`CompletionOptions::steps`] changes its answer (a sampler that integrates a flow
+    /// in steps); `false` for completers that answer in one pass, so a caller can say that a
+    /// steps setting has no effect.
+    fn uses_steps(&self) -> bool {
+        false
+    }
     /// Completes a batch of crops at [`Completer::resolution`], one completion per request, in
     /// order. Deterministic for given options.
     fn complete(

@@ -22,6 +22,7 @@ pub mod metrics;
 pub mod normals;
 pub mod reproject;
 pub mod robust;
+pub mod rotation;
 pub mod surface;
 pub mod voxel;
 

@@ -12,7 +12,7 @@
 use std::path::Path;
 
 use deocc_geometry::camera::{Camera, Intrinsics};
-use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Matrix3, Matrix4, Translation3};
 use serde::{Deserialize, Serialize};
 
 use crate::atomic::write_bytes_atomic;
@@ -75,7 +75,8 @@ pub fn pose_from_rows(rows: &[[f64; 4]; 4]) -> std::result::Result<Isometry3<f32
     if (r.transpose() * r - Matrix3::identity()).abs().max() > 1e-3 || r.determinant() < 0.0 {
         return Err("pose's rotation is not a proper orthonormal matrix".into());
     }
-    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
+    // Closed form: nalgebra's iterative `from_matrix` returns the identity for half-turns.
+    let rot = deocc_geometry::rotation::nearest_unit_quaternion(&r);
     let t = Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]);
     if t.vector.norm() > MAX_TRANSLATION_M {
         return Err(format!(
@@ -142,4 +143,27 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
     let text = std::fs::read_to_string(path).map_err(|e| IoError::new(path, e))?;
     serde_json::from_str(&text).map_err(|e| IoError::new(path, IoErrorKind::Json(e.to_string())))
+}
+
+/// Parses an options document (pipeline, grasp or place settings) into `T`: it must be a JSON
+/// object. serde reads a struct from an array too, field by field in order, so `[]` would be
+/// "all defaults" and `[4]` would set whatever field comes first, without a word.
+pub fn options_from_json<T: serde::de::DeserializeOwned>(
+    text: &str,
+) -> std::result::Result<T, String> {
+    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    if !value.is_object() {
+        let kind = match value {
+            serde_json::Value::Array(_) => "an array",
+            serde_json::Value::Null => "null",
+            serde_json::Value::Bool(_) => "a boolean",
+            serde_json::Value::Number(_) => "a number",
+            serde_json::Value::String(_) => "a string",
+            serde_json::Value::Object(_) => "an object",
+        };
+        return Err(format!(
+            "expected a JSON object of settings ({{\"field\": value, ...}}), got {kind}"
+        ));
+    }
+    serde_json::from_value(value).map_err(|e| e.to_string())
 }

@@ -20,6 +20,7 @@ pub mod mesh;
 pub mod pairs;
 pub mod ply;
 pub mod scene;
+pub mod weights;
 
 pub use error::{IoError, IoErrorKind, Result};
 pub use ply::{read_point_cloud, write_point_cloud, PlyEncoding};

@@ -10,7 +10,7 @@
 //! (uint), `generated` (uchar) and `confidence` (float), each only when the cloud has that
 //! attribute.
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 
 use deocc_geometry::PointCloud;
@@ -117,15 +117,45 @@ fn data_err(path: &Path, msg: impl Into<String>) -> IoError {
     IoError::new(path, IoErrorKind::PlyData(msg.into()))
 }
 
+/// Longest header line read (a PLY header line is a few words).
+pub const MAX_HEADER_LINE_BYTES: u64 = 4096;
+/// Longest ASCII body line read (a row of a few dozen numbers).
+pub const MAX_BODY_LINE_BYTES: u64 = 1 << 16;
+/// Most header lines read (comments included).
+pub const MAX_HEADER_LINES: usize = 10_000;
+
 fn read_header(path: &Path, r: &mut impl BufRead) -> Result<Header> {
     let mut line = String::new();
+    // Each line is read through a cap: a file of zeros (or /dev/zero) has no newline, and an
+    // uncapped `read_line` would hold all of it.
     let mut read_line = |line: &mut String, n: usize| -> Result<()> {
         line.clear();
-        let got = r.read_line(line).map_err(|e| IoError::new(path, e))?;
+        if n > MAX_HEADER_LINES {
+            return Err(header_err(
+                path,
+                format!("no end_header in the first {MAX_HEADER_LINES} lines"),
+            ));
+        }
+        let got = (&mut *r)
+            .take(MAX_HEADER_LINE_BYTES + 1)
+            .read_line(line)
+            .map_err(|e| {
+                if e.kind() == std::io::ErrorKind::InvalidData {
+                    header_err(path, format!("line {n} is not text"))
+                } else {
+                    IoError::new(path, e)
+                }
+            })?;
         if got == 0 {
             return Err(header_err(
                 path,
                 format!("file ends in the header (line {n})"),
+            ));
+        }
+        if got as u64 > MAX_HEADER_LINE_BYTES {
+            return Err(header_err(
+                path,
+                format!("header line {n} is longer than {MAX_HEADER_LINE_BYTES} bytes: not a PLY header"),
             ));
         }
         Ok(())
@@ -248,11 +278,22 @@ impl<R: BufRead> Body<R> {
                 while *pos >= tokens.len() {
                     line.clear();
                     *line_no += 1;
-                    let got = reader.read_line(line).map_err(|e| IoError::new(path, e))?;
+                    let got = (&mut *reader)
+                        .take(MAX_BODY_LINE_BYTES + 1)
+                        .read_line(line)
+                        .map_err(|e| IoError::new(path, e))?;
                     if got == 0 {
                         return Err(data_err(
                             path,
                             format!("file ends early while reading {what}"),
+                        ));
+                    }
+                    if got as u64 > MAX_BODY_LINE_BYTES {
+                        return Err(data_err(
+                            path,
+                            format!(
+                                "body line {line_no} is longer than {MAX_BODY_LINE_BYTES} bytes"
+                            ),
                         ));
                     }
                     tokens.clear();

@@ -501,3 +501,121 @@ fn pairs_keep_other_views_observations_and_sets_without_them_mix_in() {
     save_pairs(&path, &mixed).unwrap();
     assert_eq!(load_pairs(&path).unwrap(), mixed);
 }
+
+#[test]
+fn half_turn_camera_poses_are_read_as_written() {
+    // nalgebra's iterative `Rotation3::from_matrix` returns the identity for a half-turn: a
+    // camera looking back read as one looking forward, its points 1 m and more off, exit 0.
+    let rows = [
+        [-1.0, 0.0, 0.0, 0.3],
+        [0.0, 1.0, 0.0, -0.1],
+        [0.0, 0.0, -1.0, 1.2],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    let pose = deocc_io::cameras::pose_from_rows(&rows).unwrap();
+    let back = deocc_io::cameras::pose_to_rows(&pose);
+    for r in 0..4 {
+        for c in 0..4 {
+            assert!(
+                (rows[r][c] - back[r][c]).abs() < 1e-6,
+                "entry ({r}, {c}): {} became {}",
+                rows[r][c],
+                back[r][c]
+            );
+        }
+    }
+    // Every half-turn about the axes and their diagonals, through cameras.json.
+    let axes = [
+        Vector3::x(),
+        Vector3::y(),
+        Vector3::z(),
+        Vector3::new(1.0, 1.0, 0.0),
+        Vector3::new(0.0, 1.0, -1.0),
+        Vector3::new(1.0, 1.0, 1.0),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cameras.json");
+    let frames: Vec<FrameCamera> = axes
+        .iter()
+        .enumerate()
+        .map(|(k, a)| FrameCamera {
+            name: format!("{k}"),
+            intrinsics: Intrinsics::new(500.0, 500.0, 320.0, 240.0, 640, 480).unwrap(),
+            world_from_camera: Some(Isometry3::from_parts(
+                Translation3::new(0.1, 0.2, 0.3),
+                UnitQuaternion::from_axis_angle(
+                    &nalgebra::Unit::new_normalize(*a),
+                    std::f32::consts::PI,
+                ),
+            )),
+        })
+        .collect();
+    write_cameras_json(&path, &frames).unwrap();
+    let read = read_cameras_json(&path).unwrap();
+    for (w, r) in frames.iter().zip(&read) {
+        let (w, r) = (w.world_from_camera.unwrap(), r.world_from_camera.unwrap());
+        let p = Point3::new(0.3, -0.5, 1.0);
+        assert!(
+            (w * p - r * p).norm() < 1e-5,
+            "frame {}: a point moved {} m",
+            w.translation.vector,
+            (w * p - r * p).norm()
+        );
+    }
+}
+
+/// A header line has a length cap: a 2 GB file of zeros (or a link to /dev/zero) held all of it
+/// in one `read_line` (4.3 GB, 16 GB). Endless zeros, endless newlines and a long body line are
+/// refused at once, naming the file.
+#[test]
+fn endless_ply_input_is_refused_without_holding_it() {
+    use std::io::{BufReader, Read};
+    let name = Path::new("zeros.ply");
+    let zeros = BufReader::new(std::io::repeat(0));
+    let e = deocc_io::ply::read_ply_from(name, zeros)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("zeros.ply") && e.contains("longer than"), "{e}");
+    let header = std::io::Cursor::new(b"ply\n".to_vec()).chain(std::io::repeat(b'\n'));
+    let e = deocc_io::ply::read_ply_from(name, BufReader::new(header))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("end_header"), "{e}");
+    let body = std::io::Cursor::new(
+        b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+            .to_vec(),
+    )
+    .chain(std::io::repeat(b'1'));
+    let e = deocc_io::ply::read_ply_from(name, BufReader::new(body))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("longer than"), "{e}");
+    #[cfg(unix)]
+    {
+        let dir = tempfile::tempdir().unwrap();
+        let link = dir.path().join("ground_truth.ply");
+        std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
+        let e = err_text(read_ply(&link));
+        assert!(e.contains("ground_truth.ply"), "{e}");
+    }
+}
+
+/// Options documents must be JSON objects: serde reads a struct from an array field by field, so
+/// `[]` was "all defaults" and `[4]` set the first field, without a word.
+#[test]
+fn options_documents_must_be_objects() {
+    #[derive(serde::Deserialize, Debug, Default)]
+    #[serde(default, deny_unknown_fields)]
+    struct Settings {
+        first: u32,
+        second: f32,
+    }
+    let ok: Settings = deocc_io::cameras::options_from_json(r#"{"second": 2.5}"#).unwrap();
+    assert_eq!((ok.first, ok.second), (0, 2.5));
+    for text in ["[]", "[4]", "[4, 1.0]", "null", "7", "\"x\""] {
+        let e = deocc_io::cameras::options_from_json::<Settings>(text).unwrap_err();
+        assert!(e.contains("expected a JSON object"), "{text}: {e}");
+    }
+    let e = deocc_io::cameras::options_from_json::<Settings>(r#"{"thrid": 1}"#).unwrap_err();
+    assert!(e.contains("thrid"), "{e}");
+}

@@ -242,8 +242,21 @@ fn read_tensors(path: &Path, device: &Device) -> Result<HashMap<String, Tensor>>
             "no such file (a Depth Anything V2 safetensors file)",
         ));
     }
+    // The header first: a file that is not weights is refused before it is read.
+    let header = deocc_io::weights::check_safetensors(path, MAX_WEIGHTS_BYTES)
+        .map_err(|e| file_err(path, e))?;
+    if !header.names.iter().any(|n| n == "pretrained.cls_token") {
+        return Err(file_err(
+            path,
+            "no tensor pretrained.cls_token: not a Depth Anything V2 checkpoint in the \
+             original layout (pretrained.*, depth_head.*)",
+        ));
+    }
     candle_core::safetensors::load(path, device).map_err(|e| file_err(path, e))
 }
+
+/// Largest depth-model file read (Depth Anything V2 large is 1.3 GB in f32).
+pub const MAX_WEIGHTS_BYTES: u64 = 4 << 30;
 
 /// Bilinear sample at continuous pixel `(x, y)` (clamped to the image) of a `w x h` grid read
 /// through `at(x, y)`.

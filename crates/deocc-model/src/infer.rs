@@ -84,6 +84,12 @@ impl GlDotCompleter {
         timestep_shift: f32,
         device: &Device,
     ) -> Result<Self> {
+        // The header first: a file that is not weights is refused before it is read.
+        deocc_io::weights::check_safetensors(weights, crate::depth_anything::MAX_WEIGHTS_BYTES)
+            .map_err(|e| TrainError::File {
+                path: weights.to_path_buf(),
+                msg: e.to_string(),
+            })?;
         let tensors =
             candle_core::safetensors::load(weights, device).map_err(|e| TrainError::File {
                 path: weights.to_path_buf(),
@@ -465,6 +471,11 @@ fn flip_width(x: &Tensor) -> candle_core::Result<Tensor> {
 impl deocc_completion::Completer for GlDotCompleter {
     fn name(&self) -> &str {
         "gldot"
+    }
+    /// A model with a mean head read at the first step (the shipped one) answers in one forward
+    /// pass: its steps setting changes nothing.
+    fn uses_steps(&self) -> bool {
+        !(self.model.config.mean_head && self.reads_mean)
     }
 
     fn provenance(&self) -> deocc_completion::Provenance {

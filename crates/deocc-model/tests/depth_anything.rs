@@ -185,3 +185,25 @@ fn the_depth_stage_takes_the_models_answer() {
     }
     assert_eq!(frame.depth.valid_count(), report.measured + report.filled);
 }
+
+/// The header is checked before the file is read: a 3 GB file of zeros (sparse, so it costs no
+/// disk) took 3.1 GB of memory to be refused; now it is refused at once, naming the file.
+#[test]
+fn a_huge_file_that_is_not_weights_is_refused_without_reading_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("huge.safetensors");
+    std::fs::File::create(&path)
+        .unwrap()
+        .set_len(3 << 30)
+        .unwrap();
+    let t = std::time::Instant::now();
+    let err = DepthAnything::load(&path, &Device::Cpu)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("huge.safetensors") && err.contains("not a safetensors file"),
+        "{err}"
+    );
+    assert!(t.elapsed().as_secs_f32() < 2.0, "{:?}", t.elapsed());
+}

@@ -76,6 +76,7 @@ pub fn complete_instances(
     selected: &BTreeMap<u16, Vec<usize>>,
     chain: &CompleterChain,
     opts: &PipelineOptions,
+    observer: &dyn crate::Observer,
 ) -> Result<(Vec<CompletedCrop>, Vec<DeclinedCrop>), PipelineError> {
     let mut jobs: Vec<(usize, CropWindow, CropCondition)> = Vec::new();
     let mut behind: Vec<Option<Vec<f32>>> = Vec::new();
@@ -139,6 +140,14 @@ pub fn complete_instances(
     for (k, link) in chain.links().iter().enumerate() {
         let mine: Vec<usize> = (0..jobs.len()).filter(|&j| jobs[j].0 == k).collect();
         for chunk in mine.chunks(opts.batch.max(1)) {
+            // The longest stage: a cancelled or timed-out run stops between batches, not only
+            // when the stage is over.
+            let (_, from) = crate::STAGES[3];
+            let (_, to) = crate::STAGES[4];
+            let done_share = chunk[0] as f32 / jobs.len().max(1) as f32;
+            if !observer.stage("complete", from + (to - from) * done_share) {
+                return Err(PipelineError::Cancelled { stage: "complete" });
+            }
             let others: Vec<Vec<&CropCondition>> = chunk
                 .iter()
                 .map(|&j| {

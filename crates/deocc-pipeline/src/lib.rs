@@ -230,7 +230,7 @@ pub fn run_observed(
 
     let t = Instant::now();
     let (completed_crops, declined) =
-        complete::complete_instances(scene, &stats, &selected, chain, opts)?;
+        complete::complete_instances(scene, &stats, &selected, chain, opts, observer)?;
     timings.complete_s = t.elapsed().as_secs_f64();
     enter(observer, 4)?;
 

@@ -311,7 +311,7 @@ impl PipelineOptions {
     pub fn from_json_file(path: &Path) -> Result<Self, PipelineError> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| PipelineError::input(path, format!("cannot read: {e}")))?;
-        let opts: Self = serde_json::from_str(&text)
+        let opts: Self = deocc_io::cameras::options_from_json(&text)
             .map_err(|e| PipelineError::input(path, format!("pipeline options: {e}")))?;
         opts.validate()
             .map_err(|e| PipelineError::input(path, e.to_string()))?;

@@ -38,6 +38,21 @@ use crate::{PipelineError, PipelineOutput, RunReport};
 /// The file that marks a folder as a deocc run's output (it may then be replaced).
 pub const REPORT_FILE: &str = "report.json";
 
+/// Whether `dir` holds a finished run's output: a `report.json` that is a run report (a JSON
+/// object with the run's point counts) and a non-empty `completed.ply`. An empty or truncated
+/// report is not one (a batch rerun redoes that scene instead of skipping it).
+pub fn is_complete_output(dir: &Path) -> bool {
+    let report = std::fs::read(dir.join(REPORT_FILE))
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+    let is_report = report.as_ref().is_some_and(|r| {
+        r.get("points_observed").is_some_and(|v| v.is_u64())
+            && r.get("points_generated").is_some_and(|v| v.is_u64())
+    });
+    let has_cloud = std::fs::metadata(dir.join("completed.ply")).is_ok_and(|m| m.len() > 0);
+    is_report && has_cloud
+}
+
 fn err(path: &Path, msg: impl Into<String>) -> PipelineError {
     PipelineError::input(path, msg)
 }
@@ -218,7 +233,62 @@ impl Drop for Staging {
     }
 }
 
-/// Creates the lock file with our PID; takes over a lock whose process is gone.
+/// This machine's host name and boot id (Linux), `-` where unknown.
+fn host_and_boot() -> (String, String) {
+    let read = |p: &str| {
+        std::fs::read_to_string(p)
+            .ok()
+            .map(|s| s.trim().to_string())
+            .filter(|s| !s.is_empty() && !s.contains(char::is_whitespace))
+            .unwrap_or_else(|| "-".into())
+    };
+    (
+        read("/proc/sys/kernel/hostname"),
+        read("/proc/sys/kernel/random/boot_id"),
+    )
+}
+
+/// When process `pid` started (clock ticks since boot, `/proc/PID/stat` field 22), if it runs.
+fn process_start(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The command name (field 2) is in parentheses and may hold spaces: count after its end.
+    let after = &stat[stat.rfind(')')? + 1..];
+    after.split_whitespace().nth(19)?.parse().ok()
+}
+
+/// What a lock file says of its holder: PID, host, boot id and the process's start time. A PID
+/// alone is not enough: in a container every run is PID 1, so a lock left by a killed run names
+/// a live process (the next run itself) forever.
+fn lock_line() -> String {
+    let pid = std::process::id();
+    let (host, boot) = host_and_boot();
+    let start = process_start(pid).map_or("-".to_string(), |s| s.to_string());
+    format!("{pid} {host} {boot} {start}\n")
+}
+
+/// The PID holding a lock written by [`lock_line`], if that very process still runs here. An
+/// unreadable lock, or one from another host, another boot, or a process since replaced by
+/// another with its PID, is stale.
+fn live_holder(text: &str) -> Option<u32> {
+    let words: Vec<&str> = text.split_whitespace().collect();
+    let [pid, host, boot, start] = words[..] else {
+        return None;
+    };
+    let pid: u32 = pid.parse().ok()?;
+    if !cfg!(target_os = "linux") {
+        return Some(pid);
+    }
+    let (my_host, my_boot) = host_and_boot();
+    if host != my_host || boot != my_boot || !process_alive(pid) {
+        return None;
+    }
+    match (start.parse::<u64>().ok(), process_start(pid)) {
+        (Some(a), Some(b)) if a == b => Some(pid),
+        _ => None,
+    }
+}
+
+/// Creates the lock file naming this process; takes over a lock whose process is gone.
 fn take_lock(lock: &Path, out: &Path) -> Result<(), PipelineError> {
     use std::io::Write;
     for _ in 0..2 {
@@ -228,15 +298,15 @@ fn take_lock(lock: &Path, out: &Path) -> Result<(), PipelineError> {
             .open(lock)
         {
             Ok(mut f) => {
-                let _ = write!(f, "{}", std::process::id());
+                let _ = f.write_all(lock_line().as_bytes());
                 return Ok(());
             }
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
                 let holder = std::fs::read_to_string(lock)
                     .ok()
-                    .and_then(|s| s.trim().parse::<u32>().ok());
+                    .and_then(|s| live_holder(&s));
                 match holder {
-                    Some(pid) if process_alive(pid) && pid != std::process::id() => {
+                    Some(pid) if pid != std::process::id() => {
                         return Err(err(
                             out,
                             format!(
@@ -407,4 +477,63 @@ pub fn occluders_of_completed(report: &RunReport, structure: &[u16]) -> Vec<u32>
     out.sort_unstable();
     out.dedup();
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_lock_names_its_process_and_only_that_process_holds_it() {
+        let me = std::process::id();
+        assert_eq!(live_holder(&lock_line()), Some(me));
+        let (host, boot) = host_and_boot();
+        let start = process_start(me).unwrap();
+        // PID 1 is alive in every container: a lock naming it from another pod, another boot,
+        // or with another start time is stale.
+        for stale in [
+            format!("1 another-pod {boot} {start}"),
+            format!("{me} {host} 00000000-dead-beef {start}"),
+            format!("{me} {host} {boot} {}", start + 1),
+            "1".to_string(),
+            format!("{me}"),
+            String::new(),
+            "garbage".to_string(),
+        ] {
+            assert_eq!(live_holder(&stale), None, "{stale:?}");
+        }
+    }
+
+    #[test]
+    fn a_leftover_lock_of_a_dead_or_foreign_run_does_not_block_the_output() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let (_, boot) = host_and_boot();
+        std::fs::write(dir.path().join(".out.lock"), format!("1 pod-7 {boot} 42\n")).unwrap();
+        let staging = Staging::begin(&out, None).unwrap();
+        std::fs::write(staging.dir().join("x"), b"1").unwrap();
+        staging.commit().unwrap();
+        assert!(out.join("x").is_file());
+        assert!(!dir.path().join(".out.lock").exists());
+    }
+
+    #[test]
+    fn an_empty_or_foreign_report_is_not_a_finished_output() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        assert!(!is_complete_output(d));
+        std::fs::write(d.join(REPORT_FILE), b"").unwrap();
+        std::fs::write(d.join("completed.ply"), b"ply\n").unwrap();
+        assert!(!is_complete_output(d));
+        std::fs::write(d.join(REPORT_FILE), b"{}").unwrap();
+        assert!(!is_complete_output(d));
+        std::fs::write(
+            d.join(REPORT_FILE),
+            br#"{"points_observed": 10, "points_generated": 2}"#,
+        )
+        .unwrap();
+        assert!(is_complete_output(d));
+        std::fs::write(d.join("completed.ply"), b"").unwrap();
+        assert!(!is_complete_output(d));
+    }
 }

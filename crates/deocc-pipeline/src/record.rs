@@ -164,7 +164,7 @@ fn instance_colour(id: u32) -> [f32; 4] {
 /// The gripper of `g` as three boxes: the palm behind the front face and the two fingers.
 fn gripper_cubes(g: &RecordedGrasp) -> Vec<Value> {
     let m = nalgebra::Matrix3::from_fn(|i, j| g.rotation[i][j]);
-    let r = nalgebra::Rotation3::from_matrix(&m);
+    let r = deocc_geometry::rotation::nearest_rotation(&m);
     let (approach, closing) = (m.column(0).into_owned(), m.column(1).into_owned());
     let p = nalgebra::Point3::from(g.position);
     let [depth, fw, fh] = g.finger;
@@ -335,6 +335,38 @@ pub fn write_mcap(
 ) -> Result<(), PipelineError> {
     let file = std::fs::File::create(path)
         .map_err(|e| PipelineError::input(path, format!("cannot write: {e}")))?;
-    record(BufWriter::new(file), scene, completed, robot)
-        .map_err(|e| PipelineError::input(path, format!("writing the MCAP recording: {e}")))
+    record(BufWriter::new(file), scene, completed, robot).map_err(|e| {
+        PipelineError::input(
+            path,
+            format!("writing the MCAP recording: {}", mcap_why(&e)),
+        )
+    })
+}
+
+/// The cause of an MCAP error in words: mcap's own text for I/O errors ("I/O error from
+/// writing, or reading a compression stream") hides the cause, such as a full disk.
+fn mcap_why(e: &mcap::McapError) -> String {
+    match e {
+        mcap::McapError::Io(io) => match io.raw_os_error() {
+            Some(28) => format!("the disk is full ({io})"),
+            _ => io.to_string(),
+        },
+        other => other.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod why_tests {
+    use super::*;
+
+    #[test]
+    fn a_full_disk_is_named_not_hidden_behind_mcaps_words() {
+        let full = mcap::McapError::Io(std::io::Error::from_raw_os_error(28));
+        let why = mcap_why(&full);
+        assert!(why.contains("the disk is full"), "{why}");
+        assert!(!why.contains("compression stream"), "{why}");
+        let denied =
+            mcap::McapError::Io(std::io::Error::from(std::io::ErrorKind::PermissionDenied));
+        assert!(mcap_why(&denied).to_lowercase().contains("permission"));
+    }
 }

@@ -962,10 +962,13 @@ fn an_observer_sees_each_stage_and_can_stop_the_run() {
     let all = Record(Mutex::new(Vec::new()), None);
     deocc_pipeline::run_observed(&scene, &chain, &opts, &Vec::new(), &all).unwrap();
     let seen = all.0.into_inner().unwrap();
-    let names: Vec<&str> = seen.iter().map(|s| s.0).collect();
+    let mut names: Vec<&str> = seen.iter().map(|s| s.0).collect();
+    // The completion stage also asks between its batches (a deadline inside the longest stage).
+    names.dedup();
     let expected: Vec<&str> = deocc_pipeline::STAGES.iter().map(|s| s.0).collect();
     assert_eq!(names, expected);
-    assert!(seen.windows(2).all(|w| w[0].1 < w[1].1));
+    assert!(seen.windows(2).all(|w| w[0].1 <= w[1].1));
+    assert!(seen.first().unwrap().1 < seen.last().unwrap().1);
     let stop = Record(Mutex::new(Vec::new()), Some("complete"));
     let e = deocc_pipeline::run_observed(&scene, &chain, &opts, &Vec::new(), &stop)
         .err()
@@ -975,6 +978,71 @@ fn an_observer_sees_each_stage_and_can_stop_the_run() {
         deocc_pipeline::PipelineError::Cancelled { stage: "complete" }
     ));
     assert_eq!(stop.0.into_inner().unwrap().len(), 4);
+
+    // Stopped inside the completion stage: after its second batch of one crop, the completer
+    // is not called again, while the whole run calls it more often.
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Arc;
+    struct StopMidway(AtomicUsize);
+    impl deocc_pipeline::Observer for StopMidway {
+        fn stage(&self, stage: &'static str, _: f32) -> bool {
+            stage != "complete" || self.0.fetch_add(1, Ordering::SeqCst) < 2
+        }
+    }
+    struct Counting(RulesCompleter, Arc<AtomicUsize>);
+    impl deocc_completion::Completer for Counting {
+        fn name(&self) -> &str {
+            "rules"
+        }
+        fn provenance(&self) -> deocc_completion::Provenance {
+            self.0.provenance()
+        }
+        fn resolution(&self) -> usize {
+            self.0.resolution()
+        }
+        fn complete(
+            &self,
+            batch: &[deocc_completion::CropRequest<'_>],
+            opts: &deocc_completion::CompletionOptions,
+        ) -> Result<Vec<deocc_completion::CropCompletion>, deocc_completion::CompletionError>
+        {
+            self.1.fetch_add(1, Ordering::SeqCst);
+            self.0.complete(batch, opts)
+        }
+    }
+    let one_at_a_time = PipelineOptions {
+        batch: 1,
+        ..PipelineOptions::default()
+    };
+    let (whole, stopped) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicUsize::new(0)));
+    let chain = CompleterChain::single(Counting(RulesCompleter::default(), whole.clone()));
+    deocc_pipeline::run_observed(
+        &scene,
+        &chain,
+        &one_at_a_time,
+        &Vec::new(),
+        &deocc_pipeline::Unobserved,
+    )
+    .unwrap();
+    assert!(
+        whole.load(Ordering::SeqCst) > 1,
+        "the scene needs two crops"
+    );
+    let chain = CompleterChain::single(Counting(RulesCompleter::default(), stopped.clone()));
+    let e = deocc_pipeline::run_observed(
+        &scene,
+        &chain,
+        &one_at_a_time,
+        &Vec::new(),
+        &StopMidway(AtomicUsize::new(0)),
+    )
+    .err()
+    .unwrap();
+    assert!(matches!(
+        e,
+        deocc_pipeline::PipelineError::Cancelled { stage: "complete" }
+    ));
+    assert_eq!(stopped.load(Ordering::SeqCst), 1);
 }
 
 /// A plane the views see through is not filled (the vertical plane of a table's front legs and

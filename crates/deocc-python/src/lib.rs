@@ -9,7 +9,6 @@ use std::sync::{Arc, Mutex, OnceLock};
 use deocc_completion::CompleterChain;
 use deocc_geometry::PointCloud;
 use deocc_pipeline::segment::ConvexitySegmenter;
-use deocc_pipeline::Unobserved;
 use deocc_robot::place::{PlaceOptions, UnseenSpace};
 use deocc_robot::{AntipodalPlanner, GraspOptions, GraspPlanner, GridPlacer, PlacePlanner};
 use deocc_service::proto;
@@ -263,7 +262,8 @@ fn run<'py>(
         max_frames: 10_000,
         ..Limits::default()
     };
-    let out = py.detach(move || {
+    let interrupt = Interruptible::default();
+    let out = py.detach(|| {
         let (scene, opts) = scene_from_request(&req, &limits).map_err(|e| e.to_string())?;
         drop(req);
         deocc_pipeline::run_in_memory(
@@ -272,10 +272,14 @@ fn run<'py>(
             &opts,
             &ConvexitySegmenter::default(),
             segment,
-            &Unobserved,
+            &interrupt,
         )
         .map_err(|e| e.to_string())
     });
+    // Ctrl-C stopped the run between stages (or between batches of the completion).
+    if let Some(e) = interrupt.0.lock().ok().and_then(|mut e| e.take()) {
+        return Err(e);
+    }
     let out = out.map_err(value_error)?;
     let d = cloud_dict(py, &out.completed)?;
     d.set_item("observed", cloud_dict(py, &out.observed)?)?;
@@ -283,6 +287,54 @@ fn run<'py>(
         serde_json::to_string(&out.report).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
     d.set_item("report", json_to_py(py, &report)?)?;
     Ok(d)
+}
+
+/// An observer that stops a run when Python has a signal pending (Ctrl-C): the run goes on
+/// without the GIL, so Python cannot raise KeyboardInterrupt until it asks.
+#[derive(Default)]
+struct Interruptible(Mutex<Option<PyErr>>);
+
+impl deocc_pipeline::Observer for Interruptible {
+    fn stage(&self, _: &'static str, _: f32) -> bool {
+        match Python::attach(|py| py.check_signals()) {
+            Ok(()) => true,
+            Err(e) => {
+                if let Ok(mut slot) = self.0.lock() {
+                    *slot = Some(e);
+                }
+                false
+            }
+        }
+    }
+}
+
+/// Longest timeout a call takes (a day): a larger one overflowed the timeout's encoding.
+const MAX_TIMEOUT_S: f64 = 86_400.0;
+
+/// Runs `fut` on `rt` without the GIL, checking for Ctrl-C every 100 ms (a call blocked in
+/// `block_on` never let Python see it).
+fn block_interruptible<F: std::future::Future + Send>(
+    py: Python<'_>,
+    rt: &tokio::runtime::Runtime,
+    fut: F,
+) -> PyResult<F::Output>
+where
+    F::Output: Send,
+{
+    py.detach(|| {
+        rt.block_on(async move {
+            tokio::pin!(fut);
+            let mut tick = tokio::time::interval(std::time::Duration::from_millis(100));
+            loop {
+                tokio::select! {
+                    out = &mut fut => return Ok(out),
+                    _ = tick.tick() => {
+                        Python::attach(|py| py.check_signals())?;
+                    }
+                }
+            }
+        })
+    })
 }
 
 /// Reads a scene folder (as `deocc run` does) into `(frames, structure_ids)`: frames as `run`
@@ -406,7 +458,8 @@ fn grasp<'py>(
     let opts: GraspOptions = if json.is_empty() {
         GraspOptions::default()
     } else {
-        serde_json::from_str(&json).map_err(|e| value_error(format!("options: {e}")))?
+        deocc_io::cameras::options_from_json(&json)
+            .map_err(|e| value_error(format!("options: {e}")))?
     };
     opts.validate()
         .map_err(|e| value_error(format!("options: {e}")))?;
@@ -546,16 +599,23 @@ impl Client {
     ) -> PyResult<Bound<'py, PyDict>> {
         let req = request(py, frames, options, segment, None)?;
         let timeout = match timeout_s {
-            Some(t) if t.is_finite() && t > 0.0 => Some(std::time::Duration::from_secs_f64(t)),
-            Some(t) => return Err(value_error(format!("timeout_s: {t} must be positive"))),
+            Some(t) if t.is_finite() && t > 0.0 && t <= MAX_TIMEOUT_S => {
+                Some(std::time::Duration::from_secs_f64(t))
+            }
+            Some(t) => {
+                return Err(value_error(format!(
+                    "timeout_s: {t} must be in (0, {MAX_TIMEOUT_S}] seconds"
+                )))
+            }
             None => None,
         };
         let (rt, inner) = (&self.rt, &mut self.inner);
-        let got = py
-            .detach(|| rt.block_on(inner.complete(req, timeout)))
-            .map_err(|s| match s.code() {
-                deocc_service::Code::InvalidArgument => value_error(s.message().to_string()),
-                _ => PyRuntimeError::new_err(format!("{:?}: {}", s.code(), s.message())),
+        let got =
+            block_interruptible(py, rt, inner.complete(req, timeout))?.map_err(|s| {
+                match s.code() {
+                    deocc_service::Code::InvalidArgument => value_error(s.message().to_string()),
+                    _ => PyRuntimeError::new_err(format!("{:?}: {}", s.code(), s.message())),
+                }
             })?;
         let cloud = got
             .cloud()

@@ -162,6 +162,18 @@ class Deocc(unittest.TestCase):
             deocc.grasp(res["points"], res["instance"], 60000)
         with self.assertRaisesRegex(ValueError, r"points: expected shape \(N, 3\)"):
             deocc.place(res["points"][:, :2].copy())
+        # A NaN robot position returned found=True with score NaN; settings out of range and
+        # options that are not an object are refused naming them.
+        with self.assertRaisesRegex(ValueError, "robot"):
+            deocc.place(res["points"], robot=(float("nan"),) * 3)
+        target = int(next(i for i in res["instance"] if i != 0))
+        for options, field in [({"approaches": 10**12}, "approaches"),
+                               ({"normal_neighbours": 0}, "normal_neighbours"),
+                               ([], "JSON object"), ([4], "JSON object")]:
+            with self.assertRaisesRegex(ValueError, field):
+                deocc.grasp(res["points"], res["instance"], target, options=options)
+        with self.assertRaisesRegex(ValueError, "JSON object"):
+            deocc.run(small(self.frames, 1), completer="rules", options=[])
 
     def test_the_service_client(self):
         with socket.socket() as s:
@@ -187,6 +199,13 @@ class Deocc(unittest.TestCase):
             self.assertIn("complete", remote["stages"])
             with self.assertRaisesRegex(ValueError, r"frames\[0\]\.camera_info\.k"):
                 client.complete([dict(f[0], K=[[np.nan, 0, 1], [0, 1, 1], [0, 0, 1]])])
+            # A transposed K, and timeouts that panicked (Duration::from_secs_f64, tonic).
+            K = np.asarray(f[0]["K"], dtype=np.float64)
+            with self.assertRaisesRegex(ValueError, "transposed"):
+                client.complete([dict(f[0], K=K.T.copy())])
+            for t in (1e300, 1e15, float("inf"), -1.0):
+                with self.assertRaisesRegex(ValueError, "timeout_s"):
+                    client.complete(f, timeout_s=t)
             del client
         finally:
             server.terminate()

@@ -107,38 +107,57 @@ impl Default for GraspOptions {
 }
 
 impl GraspOptions {
+    /// Most candidate grasps one call may score: `seeds x approaches x depths` (the defaults
+    /// give 5,760). Beyond it a call would run for minutes to hours.
+    pub const MAX_CANDIDATES: usize = 100_000;
+
+    /// Every setting in its stated range (the error names it); see [`crate::range`].
     pub fn validate(&self) -> Result<(), RobotError> {
+        use crate::range::{count, direction, real};
         self.gripper.validate()?;
-        let up = Vector3::from(self.up);
-        if !(up.norm().is_finite() && up.norm() > 1e-6) {
+        direction("up", self.up)?;
+        real("voxel_m", self.voxel_m, 0.0005, 0.05, " m")?;
+        count("normal_neighbours", self.normal_neighbours, 3, 64)?;
+        count("seeds", self.seeds, 1, 5000)?;
+        count("approaches", self.approaches, 1, 72)?;
+        count("depths (entries)", self.depths.len(), 1, 16)?;
+        for (k, &d) in self.depths.iter().enumerate() {
+            real(
+                &format!("depths[{k}]"),
+                d,
+                0.0,
+                self.gripper.depth,
+                " m (the finger's depth)",
+            )?;
+        }
+        let candidates = self.seeds * self.approaches * self.depths.len();
+        if candidates > Self::MAX_CANDIDATES {
             return Err(RobotError::Config(format!(
-                "up = {:?}: must be a non-zero finite vector",
-                self.up
+                "seeds x approaches x depths = {} x {} x {} = {candidates}: at most {} \
+                 candidate grasps a call",
+                self.seeds,
+                self.approaches,
+                self.depths.len(),
+                Self::MAX_CANDIDATES
             )));
         }
-        if self.seeds == 0 || self.approaches == 0 || self.depths.is_empty() || self.top_k == 0 {
-            return Err(RobotError::Config(
-                "seeds, approaches, depths and top_k must not be zero or empty".into(),
-            ));
-        }
-        if !(self.voxel_m > 0.0 && self.voxel_m < 0.1) {
-            return Err(RobotError::Config(format!(
-                "voxel_m = {}: must be in (0, 0.1) m",
-                self.voxel_m
-            )));
-        }
-        if !(self.collision_margin_m >= 0.0 && self.collision_margin_m < 0.05) {
-            return Err(RobotError::Config(format!(
-                "collision_margin_m = {}: must be in [0, 0.05) m",
-                self.collision_margin_m
-            )));
-        }
-        if !(self.friction_deg > 0.0 && self.friction_deg < 90.0) {
-            return Err(RobotError::Config(format!(
-                "friction_deg = {}: must be in (0, 90)",
-                self.friction_deg
-            )));
-        }
+        real("friction_deg", self.friction_deg, 0.1, 89.9, " degrees")?;
+        count("min_jaw_points", self.min_jaw_points, 1, 1000)?;
+        real("jaw_band_m", self.jaw_band_m, 0.0, 0.05, " m")?;
+        real("margin_m", self.margin_m, 0.0, 0.05, " m")?;
+        real("open_margin_m", self.open_margin_m, 0.0, 0.1, " m")?;
+        real("palm_clearance_m", self.palm_clearance_m, 0.0, 0.1, " m")?;
+        real(
+            "collision_margin_m",
+            self.collision_margin_m,
+            0.0,
+            0.049,
+            " m",
+        )?;
+        real("max_upward", self.max_upward, -1.0, 1.0, "")?;
+        real("nms_distance_m", self.nms_distance_m, 0.0, 1.0, " m")?;
+        real("nms_angle_deg", self.nms_angle_deg, 0.0, 180.0, " degrees")?;
+        count("top_k", self.top_k, 1, 1000)?;
         Ok(())
     }
 }

@@ -11,6 +11,7 @@ pub mod grasp_eval;
 pub mod gripper;
 pub mod picture;
 pub mod place;
+pub mod range;
 
 pub use grasp::{AntipodalPlanner, GraspOptions, GraspPlanner};
 pub use gripper::{Grasp, GripperConfig};

@@ -30,6 +30,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::RobotError;
 
+/// Most cells one placement map may have (a 20 x 20 m plane at 1 cm cells): a map costs tens of
+/// bytes a cell, and a plane larger than a room is no table to put an object on.
+pub const MAX_MAP_CELLS: usize = 4_000_000;
+
+/// Most cells all of one call's maps may have together.
+pub const MAX_TOTAL_MAP_CELLS: usize = 8_000_000;
+
 /// What to assume in cells without any point.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -99,33 +106,33 @@ impl Default for PlaceOptions {
 }
 
 impl PlaceOptions {
+    /// Every setting in its stated range (the error names it); see [`crate::range`].
     pub fn validate(&self) -> Result<(), RobotError> {
+        use crate::range::{count, direction, real};
         let [w, d] = self.footprint;
-        for (name, v) in [
-            ("footprint width", w),
-            ("footprint depth", d),
-            ("height", self.height),
-            ("cell_m", self.cell_m),
-        ] {
-            if !(v.is_finite() && v > 0.0 && v <= 5.0) {
-                return Err(RobotError::Config(format!(
-                    "{name} = {v}: must be a positive size in metres, at most 5"
-                )));
-            }
-        }
-        if !(self.min_support > 0.0 && self.min_support <= 1.0) {
-            return Err(RobotError::Config(format!(
-                "min_support = {}: must be in (0, 1]",
-                self.min_support
-            )));
-        }
-        let up = Vector3::from(self.up);
-        if !(up.norm().is_finite() && up.norm() > 1e-6) {
-            return Err(RobotError::Config(format!(
-                "up = {:?}: must be a non-zero finite vector",
-                self.up
-            )));
-        }
+        real("footprint width", w, 0.005, 5.0, " m")?;
+        real("footprint depth", d, 0.005, 5.0, " m")?;
+        real("height", self.height, 0.001, 5.0, " m")?;
+        real("cell_m", self.cell_m, 0.002, 0.2, " m")?;
+        real(
+            "support_tolerance_m",
+            self.support_tolerance_m,
+            0.0,
+            0.1,
+            " m",
+        )?;
+        real("min_support", self.min_support, 0.01, 1.0, "")?;
+        real("gap_m", self.gap_m, 0.0, 0.1, " m")?;
+        real("gap_noise_sigmas", self.gap_noise_sigmas, 0.0, 20.0, "")?;
+        real("headroom_m", self.headroom_m, 0.0, 1.0, " m")?;
+        real("overhead_m", self.overhead_m, 0.0, 5.0, " m")?;
+        real("dilation_m", self.dilation_m, 0.0, 0.5, " m")?;
+        real("max_tilt_deg", self.max_tilt_deg, 0.0, 45.0, " degrees")?;
+        direction("up", self.up)?;
+        count("min_plane_points", self.min_plane_points, 3, 10_000_000)?;
+        real("support_closing_m", self.support_closing_m, 0.0, 0.5, " m")?;
+        real("clearance_cap_m", self.clearance_cap_m, 0.0, 5.0, " m")?;
+        real("distance_weight", self.distance_weight, 0.0, 100.0, "")?;
         Ok(())
     }
 
@@ -342,10 +349,18 @@ pub fn build_map_seen_from(
     let cell = opts.cell_m;
     let nx = ((x1 - x0) / cell).ceil().max(0.0) as usize;
     let ny = ((y1 - y0) / cell).ceil().max(0.0) as usize;
-    if nx == 0 || ny == 0 || nx * ny > 25_000_000 {
+    if nx == 0 || ny == 0 {
         return Err(RobotError::Input(format!(
-            "support plane {:?} gives a {nx} x {ny} grid at {cell} m cells",
+            "support plane {:?} gives an empty grid at {cell} m cells",
             plane.bounds
+        )));
+    }
+    if nx * ny > MAX_MAP_CELLS {
+        return Err(RobotError::Input(format!(
+            "a support plane spans {:.1} x {:.1} m: {nx} x {ny} cells of {cell} m, more than the \
+             limit of {MAX_MAP_CELLS} cells a plane (raise cell_m or crop the cloud to the workspace)",
+            x1 - x0,
+            y1 - y0
         )));
     }
     let level = opts.level();
@@ -599,6 +614,12 @@ impl PlacePlanner for GridPlacer {
         points: &[Point3<f32>],
         robot: &Point3<f32>,
     ) -> Result<(Vec<PlaceMap>, Option<Placement>), RobotError> {
+        if !(robot.x.is_finite() && robot.y.is_finite() && robot.z.is_finite()) {
+            return Err(RobotError::Config(format!(
+                "robot = [{}, {}, {}]: must be three finite numbers",
+                robot.x, robot.y, robot.z
+            )));
+        }
         let planes = find_support_planes(points, &self.options)?;
         if planes.is_empty() {
             return Err(RobotError::Input(format!(
@@ -615,6 +636,23 @@ impl PlacePlanner for GridPlacer {
         if w.min(d) > biggest {
             return Err(RobotError::Input(format!(
                 "footprint {w} x {d} m is larger than every support surface (largest {biggest:.2} m)"
+            )));
+        }
+        // Every map's size before the first is built: refused whole, not after minutes.
+        let cell = self.options.cell_m;
+        let cells: usize = planes
+            .iter()
+            .map(|p| {
+                let nx = ((p.bounds[2] - p.bounds[0]) / cell).ceil().max(0.0) as usize;
+                let ny = ((p.bounds[3] - p.bounds[1]) / cell).ceil().max(0.0) as usize;
+                nx.saturating_mul(ny)
+            })
+            .fold(0usize, usize::saturating_add);
+        if cells > MAX_TOTAL_MAP_CELLS {
+            return Err(RobotError::Input(format!(
+                "the cloud's {} support planes need {cells} cells of {cell} m, more than the limit \
+                 of {MAX_TOTAL_MAP_CELLS} a call (raise cell_m or crop the cloud to the workspace)",
+                planes.len()
             )));
         }
         let mut maps = Vec::new();

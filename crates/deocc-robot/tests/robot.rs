@@ -478,3 +478,111 @@ fn a_noisy_table_top_is_a_surface_and_a_box_on_it_still_blocks() {
     assert!(a.occupied[centre] && !a.placeable[centre]);
     assert!(share(&a.placeable) > 0.5, "{}", share(&a.placeable));
 }
+
+/// Every grasp setting has a range: values that hung the planner (10^12 approaches), scored a
+/// grasp above every real one (normal_neighbours = u64::MAX), or quietly found nothing
+/// (normal_neighbours 0, voxel_m 1e-30, a negative depth) are refused naming the setting, before
+/// any work.
+#[test]
+fn grasp_settings_out_of_range_are_refused_by_name() {
+    let (s, _) = lone_box();
+    let target = s.of(2);
+    type Set = Box<dyn Fn(&mut deocc_robot::GraspOptions)>;
+    let cases: Vec<(&str, Set)> = vec![
+        ("approaches", Box::new(|o| o.approaches = 1_000_000_000_000)),
+        (
+            "normal_neighbours",
+            Box::new(|o| o.normal_neighbours = usize::MAX),
+        ),
+        ("normal_neighbours", Box::new(|o| o.normal_neighbours = 0)),
+        ("voxel_m", Box::new(|o| o.voxel_m = 1e-30)),
+        ("voxel_m", Box::new(|o| o.voxel_m = f32::NAN)),
+        ("depths[0]", Box::new(|o| o.depths = vec![-1.0])),
+        ("depths (entries)", Box::new(|o| o.depths = vec![0.01; 100])),
+        (
+            "seeds x approaches x depths",
+            Box::new(|o| {
+                o.seeds = 5000;
+                o.approaches = 72;
+            }),
+        ),
+        ("top_k", Box::new(|o| o.top_k = 0)),
+        ("jaw_band_m", Box::new(|o| o.jaw_band_m = f32::INFINITY)),
+        ("max_upward", Box::new(|o| o.max_upward = 2.0)),
+        ("nms_angle_deg", Box::new(|o| o.nms_angle_deg = -1.0)),
+    ];
+    for (field, set) in cases {
+        let mut p = AntipodalPlanner::default();
+        set(&mut p.options);
+        let t = std::time::Instant::now();
+        let err = p.plan(&s.points, &target).unwrap_err().to_string();
+        assert!(err.contains(field), "{field}: {err}");
+        assert!(
+            t.elapsed().as_secs_f32() < 1.0,
+            "{field}: refused only after work"
+        );
+    }
+    // The defaults still plan.
+    assert!(!AntipodalPlanner::default()
+        .plan(&s.points, &target)
+        .unwrap()
+        .is_empty());
+}
+
+/// Placement settings have ranges too; a robot position with NaN is refused (it returned
+/// found = true with score NaN); a cloud of huge flat planes is refused by its map size before
+/// any map is built (8 planes of 49 m took 1.7 GiB and 33 s).
+#[test]
+fn placement_refuses_bad_settings_nan_robots_and_maps_past_the_cell_limit() {
+    use deocc_robot::{GridPlacer, PlacePlanner};
+    let (s, _) = lone_box();
+    for (field, set) in [
+        (
+            "cell_m",
+            (|o: &mut PlaceOptions| o.cell_m = 1e-6) as fn(&mut PlaceOptions),
+        ),
+        ("gap_noise_sigmas", |o| o.gap_noise_sigmas = f32::NAN),
+        ("min_plane_points", |o| o.min_plane_points = 0),
+        ("max_tilt_deg", |o| o.max_tilt_deg = 90.0),
+        ("distance_weight", |o| o.distance_weight = -1.0),
+    ] {
+        let mut o = PlaceOptions::default();
+        set(&mut o);
+        let err = o.validate().unwrap_err().to_string();
+        assert!(err.contains(field), "{field}: {err}");
+    }
+    let placer = GridPlacer {
+        options: PlaceOptions::default(),
+        unseen: UnseenSpace::AsPoints,
+        eye: None,
+    };
+    let err = placer
+        .plan(&s.points, &Point3::new(f32::NAN, f32::NAN, f32::NAN))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("robot"), "{err}");
+    assert!(placer.plan(&s.points, &Point3::origin()).is_ok());
+
+    // Four flat 49 m planes at different heights, points about 10 cm apart.
+    let mut planes = Vec::new();
+    for level in 0..4 {
+        for i in 0..500 {
+            for j in 0..500 {
+                if (i + j) % 3 == 0 {
+                    planes.push(Point3::new(
+                        i as f32 * 0.098 - 24.5,
+                        j as f32 * 0.098 - 24.5,
+                        level as f32,
+                    ));
+                }
+            }
+        }
+    }
+    let t = std::time::Instant::now();
+    let err = placer
+        .plan(&planes, &Point3::origin())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("limit"), "{err}");
+    assert!(t.elapsed().as_secs_f32() < 20.0, "{:?}", t.elapsed());
+}

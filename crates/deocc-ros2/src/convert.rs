@@ -121,7 +121,8 @@ fn ros_image(m: &proto::Image, header: &msgs::Header) -> msgs::Image {
 /// The pose message of a row-major 4x4 world-from-camera (its rotation re-orthonormalised).
 pub fn pose_msg(rows: &[f64], header: msgs::Header) -> msgs::PoseStamped {
     let r = nalgebra::Matrix3::from_fn(|i, j| rows[4 * i + j]);
-    let q = UnitQuaternion::from_matrix(&r);
+    // Closed form: nalgebra's iterative `from_matrix` returns the identity for half-turns.
+    let q = deocc_geometry::rotation::nearest_unit_quaternion(&r);
     msgs::PoseStamped {
         header,
         pose: msgs::Pose {
@@ -280,6 +281,22 @@ mod tests {
             );
         }
         assert_eq!(&rows[12..], &[0.0, 0.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn half_turn_poses_survive_the_round_trip() {
+        // A camera turned half about its y axis: nalgebra's iterative `from_matrix` read it as
+        // the identity and the bridge published a pose 180 degrees off.
+        let rows = vec![
+            -1.0, 0.0, 0.0, 0.4, //
+            0.0, 1.0, 0.0, -0.2, //
+            0.0, 0.0, -1.0, 1.5, //
+            0.0, 0.0, 0.0, 1.0,
+        ];
+        let back = pose_rows(&pose_msg(&rows, Default::default())).unwrap();
+        for (k, (a, b)) in rows.iter().zip(&back).enumerate() {
+            assert!((a - b).abs() < 1e-9, "entry {k}: {a} became {b}");
+        }
     }
 
     #[test]

@@ -43,9 +43,18 @@ fn bad_settings_and_input_are_named() {
         (&["bridge", "--completer", "magic"][..], "magic"),
         (&["play", "/no/such/scene"][..], "/no/such/scene"),
         (&["play", "/tmp", "--period=-1"][..], "--period"),
+        // These panicked (Duration::from_secs_f64) or bound wrapped ports.
+        (&["play", "/tmp", "--period", "1e300"][..], "--period"),
+        (&["play", "/tmp", "--timeout", "1e300"][..], "--timeout"),
+        (&["bridge", "--domain-id", "300"][..], "--domain-id 300"),
+        (
+            &["play", "/tmp", "--domain-id", "233"][..],
+            "--domain-id 233",
+        ),
     ] {
         let (ok, err) = run(args);
         assert!(!ok, "{args:?} succeeded");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
         assert!(err.contains(want), "{args:?}: {err}");
         assert!(
             err.starts_with("error") || err.contains("error:"),

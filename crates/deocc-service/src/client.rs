@@ -60,9 +60,20 @@ impl Client {
         })
     }
 
+    /// Longest timeout a call may ask for (a day).
+    pub const MAX_TIMEOUT_S: u64 = 86_400;
+
     fn request<T>(&self, msg: T, timeout: Option<Duration>) -> Result<Request<T>, Status> {
         let mut r = Request::new(msg);
         if let Some(t) = timeout {
+            // gRPC's timeout header holds at most 8 digits of its unit: beyond a day, tonic's
+            // encoding of it panicked.
+            if t.is_zero() || t > Duration::from_secs(Self::MAX_TIMEOUT_S) {
+                return Err(Status::invalid_argument(format!(
+                    "timeout {t:?} must be above zero and at most {} s",
+                    Self::MAX_TIMEOUT_S
+                )));
+            }
             r.set_timeout(t);
         }
         if let Some(token) = &self.token {

@@ -8,7 +8,9 @@
 
 pub mod client;
 pub mod cloud2;
+pub mod guard;
 pub mod local;
+pub mod raw;
 pub mod request;
 pub mod server;
 

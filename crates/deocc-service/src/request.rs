@@ -108,6 +108,7 @@ fn intrinsics(info: &CameraInfo, at: &str, limits: &Limits) -> Result<Intrinsics
     if k.iter().any(|v| !v.is_finite()) {
         return Err(bad(format!("{at}.k"), format!("{k:?} is not finite")));
     }
+    check_pinhole_k(k).map_err(|e| bad(format!("{at}.k"), format!("{k:?}: {e}")))?;
     let i = Intrinsics::new(
         k[0] as f32,
         k[4] as f32,
@@ -119,6 +120,54 @@ fn intrinsics(info: &CameraInfo, at: &str, limits: &Limits) -> Result<Intrinsics
     .and_then(|i| i.check_plausible().map(|_| i))
     .map_err(|e| bad(format!("{at}.k"), e.to_string()))?;
     Ok(i)
+}
+
+/// Median measured depth above which float depth cannot be metres (no RGB-D camera measures a
+/// scene whose middle is this far).
+pub const MAX_MEDIAN_DEPTH_M: f32 = 50.0;
+
+/// 32FC1 depth is metres (REP 118); millimetres in a float image would be read as a scene a
+/// thousand times too large. Refused with what to do when the median measured value cannot be
+/// metres.
+pub fn check_metres(depth: &[f32]) -> Result<(), String> {
+    let mut valid: Vec<f32> = depth.iter().copied().filter(|&d| d > 0.0).collect();
+    if valid.is_empty() {
+        return Ok(());
+    }
+    let mid = valid.len() / 2;
+    let (_, median, _) = valid.select_nth_unstable_by(mid, f32::total_cmp);
+    if *median > MAX_MEDIAN_DEPTH_M {
+        return Err(format!(
+            "32FC1 depth is in metres (REP 118), but the median measured value is {median}: \
+             millimetres? Divide by 1000, or send 16UC1 millimetres"
+        ));
+    }
+    Ok(())
+}
+
+/// A row-major K must be `[fx, 0, cx, 0, fy, cy, 0, 0, 1]`: only four entries are read, so a
+/// transposed matrix (cx, cy in the last row), a skewed one or one with `K[8] != 1` would
+/// otherwise be read as another camera without a word.
+pub fn check_pinhole_k(k: &[f64]) -> Result<(), String> {
+    let scale = k[0].abs().max(k[4].abs()).max(1.0);
+    for (i, want, what) in [
+        (1, 0.0, "the skew K[1]"),
+        (3, 0.0, "K[3]"),
+        (6, 0.0, "K[6]"),
+        (7, 0.0, "K[7]"),
+        (8, 1.0, "K[8]"),
+    ] {
+        let tol = if i == 8 { 1e-9 } else { 1e-9 * scale };
+        if (k[i] - want).abs() > tol {
+            let hint = if i == 6 || i == 7 {
+                " (is it transposed? K is row-major: [fx, 0, cx, 0, fy, cy, 0, 0, 1])"
+            } else {
+                " (a pinhole K is row-major [fx, 0, cx, 0, fy, cy, 0, 0, 1])"
+            };
+            return Err(format!("{what} is {}, must be {want}{hint}", k[i]));
+        }
+    }
+    Ok(())
 }
 
 fn pose(m: &[f64], at: &str) -> Result<Isometry3<f32>, FieldError> {
@@ -199,6 +248,9 @@ fn frame(
             "has no valid measurement (every pixel 0 or NaN)",
         ));
     }
+    if !mm {
+        check_metres(&depth).map_err(|e| bad(format!("{at}.depth"), e))?;
+    }
     let depth = DepthMap::new(size.0, size.1, depth)
         .map_err(|e| bad(format!("{at}.depth"), e.to_string()))?;
     let instances = match &req.instances {
@@ -272,8 +324,8 @@ pub fn scene_from_request(
     let opts = if req.options_json.trim().is_empty() {
         PipelineOptions::default()
     } else {
-        let o: PipelineOptions = serde_json::from_str(&req.options_json)
-            .map_err(|e| bad("options_json", e.to_string()))?;
+        let o: PipelineOptions = deocc_io::cameras::options_from_json(&req.options_json)
+            .map_err(|e| bad("options_json", e))?;
         o.validate()
             .map_err(|e| bad("options_json", e.to_string()))?;
         o

@@ -23,6 +23,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 
+use crate::guard::{UploadGuardLayer, UploadLimits, UploadState};
 use crate::proto::deocc_server::{Deocc, DeoccServer};
 use crate::proto::{
     complete_event, CompleteEvent, CompleteRequest, GraspPose, GraspRequest, GraspResponse,
@@ -45,6 +46,8 @@ pub struct ServerConfig {
     pub max_deadline: Duration,
     /// If set, every call needs `authorization: Bearer <token>`.
     pub token: Option<String>,
+    /// What requests may hold while they arrive ([`crate::guard`]).
+    pub uploads: UploadLimits,
 }
 
 impl Default for ServerConfig {
@@ -57,6 +60,7 @@ impl Default for ServerConfig {
             limits: Limits::default(),
             max_deadline: Duration::from_secs(600),
             token: None,
+            uploads: UploadLimits::default(),
         }
     }
 }
@@ -70,6 +74,7 @@ pub struct DeoccService {
     workers: Arc<Semaphore>,
     queued: Arc<AtomicU32>,
     running: Arc<AtomicU32>,
+    uploads: Arc<UploadState>,
 }
 
 fn status_of(e: &FieldError) -> Status {
@@ -165,6 +170,7 @@ impl DeoccService {
             workers: Arc::new(Semaphore::new(workers)),
             queued: Arc::new(AtomicU32::new(0)),
             running: Arc::new(AtomicU32::new(0)),
+            uploads: Arc::new(UploadState::default()),
             config,
         }
     }
@@ -188,9 +194,10 @@ impl DeoccService {
     {
         let (queued, workers) = (self.queued.clone(), self.workers.clone());
         async move {
-            queued.fetch_add(1, Ordering::Relaxed);
+            // Counted down when the wait ends or when the future is dropped (the client hung up
+            // while queued): Health's `queued` comes back to zero either way.
+            let _counted = Counted::new(queued);
             let got = tokio::time::timeout_at(deadline.into(), workers.acquire_owned()).await;
-            queued.fetch_sub(1, Ordering::Relaxed);
             match got {
                 Ok(Ok(p)) => Ok(p),
                 Ok(Err(_)) => Err(Status::unavailable("the server is shutting down")),
@@ -202,23 +209,44 @@ impl DeoccService {
     }
 
     /// A unary call through the same queue as `Complete`: admitted, given a worker before its
-    /// deadline, run on the blocking pool.
+    /// deadline, run on the blocking pool (counted as running meanwhile); the client gets
+    /// DEADLINE_EXCEEDED at its deadline even if the work is still going (the work is bounded by
+    /// the options' ranges and keeps its worker until it ends).
     async fn unary<T: Send + 'static, R: Send + 'static>(
         &self,
         req: Request<T>,
         work: impl FnOnce(T) -> Result<R, Status> + Send + 'static,
     ) -> Result<Response<R>, Status> {
-        let _admitted = self.admit()?;
+        let admitted = self.admit()?;
         let deadline = deadline(&req, self.config.max_deadline);
         let req = req.into_inner();
         let permit = self.worker(deadline).await?;
-        tokio::task::spawn_blocking(move || {
-            let _permit = permit;
+        let running = Counted::new(self.running.clone());
+        let job = tokio::task::spawn_blocking(move || {
+            let _held = (permit, running, admitted);
             work(req)
-        })
-        .await
-        .map_err(|e| Status::internal(e.to_string()))?
-        .map(Response::new)
+        });
+        match tokio::time::timeout_at(deadline.into(), job).await {
+            Ok(done) => done
+                .map_err(|e| Status::internal(format!("the call panicked: {e}")))?
+                .map(Response::new),
+            Err(_) => Err(Status::deadline_exceeded(
+                "the deadline passed while the call was running",
+            )),
+        }
+    }
+
+    /// The guard for this service's request bodies (add it with `Server::builder().layer`).
+    pub fn upload_guard(&self) -> UploadGuardLayer {
+        UploadGuardLayer::new(self.config.uploads, self.uploads.clone())
+    }
+
+    /// Request bodies arriving now and the bytes they hold.
+    pub fn uploads(&self) -> (usize, usize) {
+        (
+            self.uploads.uploads.load(Ordering::Relaxed),
+            self.uploads.bytes.load(Ordering::Relaxed),
+        )
     }
 
     /// The tonic service with the configured limits and token check.
@@ -234,6 +262,23 @@ impl DeoccService {
     }
 }
 
+/// One count of a Health counter, given back when dropped (whatever ends the wait or the work:
+/// an answer, an error, a deadline, a client hanging up, a panic).
+struct Counted(Arc<AtomicU32>);
+
+impl Counted {
+    fn new(counter: Arc<AtomicU32>) -> Self {
+        counter.fetch_add(1, Ordering::Relaxed);
+        Self(counter)
+    }
+}
+
+impl Drop for Counted {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
 /// Refuses calls without the shared token (when one is set).
 #[derive(Clone)]
 pub struct TokenCheck(Option<Arc<str>>);
@@ -243,16 +288,21 @@ impl tonic::service::Interceptor for TokenCheck {
         let Some(token) = &self.0 else {
             return Ok(req);
         };
-        let given = req
-            .metadata()
-            .get("authorization")
-            .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
-        match given {
-            Some(t) if constant_time_eq(t.as_bytes(), token.as_bytes()) => Ok(req),
+        let Some(header) = req.metadata().get("authorization") else {
+            return Err(Status::unauthenticated(
+                "this server needs `authorization: Bearer <token>`",
+            ));
+        };
+        // The scheme is case-insensitive (RFC 7235); the token is compared as bytes, so one
+        // that is not ASCII is a wrong token, not a missing one.
+        let bytes = header.as_bytes();
+        let token_bytes = (bytes.len() > 7 && bytes[..7].eq_ignore_ascii_case(b"bearer "))
+            .then(|| bytes[7..].trim_ascii());
+        match token_bytes {
+            Some(t) if constant_time_eq(t, token.as_bytes()) => Ok(req),
             Some(_) => Err(Status::unauthenticated("wrong token")),
             None => Err(Status::unauthenticated(
-                "this server needs `authorization: Bearer <token>`",
+                "the authorization header is not `Bearer <token>`",
             )),
         }
     }
@@ -300,15 +350,14 @@ impl Deocc for DeoccService {
                     return;
                 }
             };
-            running.fetch_add(1, Ordering::Relaxed);
+            let counted = Counted::new(running);
             let out_tx = tx.clone();
             let result = tokio::task::spawn_blocking(move || {
-                let _permit = permit;
+                let _held = (permit, counted);
                 let observer = StreamObserver { tx, deadline };
                 crate::local::complete(scene, &opts, segment, &chain, &observer)
             })
             .await;
-            running.fetch_sub(1, Ordering::Relaxed);
             let event = match result {
                 Ok(Ok(r)) => Ok(CompleteEvent {
                     event: Some(complete_event::Event::Result(r)),
@@ -353,7 +402,7 @@ fn grasp(req: &GraspRequest) -> Result<GraspResponse, Status> {
     let options: GraspOptions = if req.options_json.trim().is_empty() {
         GraspOptions::default()
     } else {
-        serde_json::from_str(&req.options_json)
+        deocc_io::cameras::options_from_json(&req.options_json)
             .map_err(|e| Status::invalid_argument(format!("options_json: {e}")))?
     };
     options
@@ -471,14 +520,13 @@ pub async fn serve(
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
     let (tx, rx) = tokio::sync::watch::channel(false);
     let mut rx2 = rx.clone();
-    let server = tonic::transport::Server::builder().serve_with_incoming_shutdown(
-        service.into_server(),
-        incoming,
-        async move {
+    let guard = service.upload_guard();
+    let server = tonic::transport::Server::builder()
+        .layer(guard)
+        .serve_with_incoming_shutdown(service.into_server(), incoming, async move {
             let mut rx = rx;
             let _ = rx.wait_for(|&stop| stop).await;
-        },
-    );
+        });
     let signal = async move {
         shutdown.await;
         let _ = tx.send(true);

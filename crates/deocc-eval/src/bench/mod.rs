@@ -5,5 +5,6 @@ pub mod geometry;
 pub mod memory;
 pub mod model;
 pub mod service;
+pub mod soak;
 pub mod synth;
 pub mod timing;

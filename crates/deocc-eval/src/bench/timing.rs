@@ -77,3 +77,38 @@ pub fn peer_script(dir: &std::path::Path, name: &str, text: &str) -> Result<Path
     std::fs::write(&path, text).map_err(|e| deocc_io::IoError::new(&path, e))?;
     Ok(path)
 }
+
+/// The machine a report was measured on: CPU model, cores, and the load average when it began
+/// (a figure from a loaded machine is not a quiet machine's).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Machine {
+    pub cpu_model: String,
+    pub cores: usize,
+    /// 1, 5 and 15 minute load averages (Linux; NaN elsewhere).
+    pub load_average: [f64; 3],
+}
+
+impl Machine {
+    pub fn now() -> Self {
+        let cpu_model = std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|t| {
+                t.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split_once(':'))
+                    .map(|(_, v)| v.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown".into());
+        let mut load_average = [f64::NAN; 3];
+        if let Ok(t) = std::fs::read_to_string("/proc/loadavg") {
+            for (slot, v) in load_average.iter_mut().zip(t.split_whitespace()) {
+                *slot = v.parse().unwrap_or(f64::NAN);
+            }
+        }
+        Self {
+            cpu_model,
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            load_average,
+        }
+    }
+}

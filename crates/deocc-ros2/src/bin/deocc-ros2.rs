@@ -30,6 +30,12 @@ enum Cmd {
     Play(PlayArgs),
 }
 
+/// The highest DDS domain id whose RTPS ports stay below 65536.
+const MAX_DOMAIN_ID: u16 = 232;
+
+/// Longest --period / --timeout, seconds (a day).
+const MAX_SECONDS: f64 = 86_400.0;
+
 #[derive(Args)]
 struct Topics {
     /// ROS domain (default: $ROS_DOMAIN_ID, else 0).
@@ -52,16 +58,25 @@ struct Topics {
 
 impl Topics {
     fn domain(&self) -> Result<u16> {
-        match self.domain_id {
-            Some(d) => Ok(d),
+        let (d, from) = match self.domain_id {
+            Some(d) => (d, "--domain-id"),
             None => match std::env::var("ROS_DOMAIN_ID") {
-                Ok(v) if !v.trim().is_empty() => v
-                    .trim()
-                    .parse()
-                    .with_context(|| format!("ROS_DOMAIN_ID={v:?} is not a domain number")),
-                _ => Ok(0),
+                Ok(v) if !v.trim().is_empty() => (
+                    v.trim()
+                        .parse()
+                        .with_context(|| format!("ROS_DOMAIN_ID={v:?} is not a domain number"))?,
+                    "ROS_DOMAIN_ID",
+                ),
+                _ => (0, "the default"),
             },
-        }
+        };
+        // DDS maps a domain to UDP ports 7400 + 250 x domain + ...: past 232 they wrap past
+        // 65535 and bind another domain's ports.
+        anyhow::ensure!(
+            d <= MAX_DOMAIN_ID,
+            "{from} {d} is outside 0..={MAX_DOMAIN_ID} (the DDS domains whose ports fit)"
+        );
+        Ok(d)
     }
 }
 
@@ -161,6 +176,7 @@ async fn bridge(a: BridgeArgs) -> Result<()> {
         );
     }
     anyhow::ensure!(a.max_views >= 1, "--max-views must be at least 1");
+    let domain_id = a.topics.domain()?;
     let options_json = match &a.options {
         Some(p) => {
             let o = deocc_pipeline::PipelineOptions::from_json_file(p)?;
@@ -210,7 +226,7 @@ async fn bridge(a: BridgeArgs) -> Result<()> {
         }
     };
     let cfg = BridgeConfig {
-        domain_id: a.topics.domain()?,
+        domain_id,
         namespace: a.namespace,
         node_name: a.name,
         rgb_topic: a.topics.rgb,
@@ -236,13 +252,16 @@ async fn bridge(a: BridgeArgs) -> Result<()> {
 
 async fn play(a: PlayArgs) -> Result<()> {
     anyhow::ensure!(
-        a.period.is_finite() && a.period >= 0.0,
-        "--period must be >= 0"
+        a.period.is_finite() && (0.0..=MAX_SECONDS).contains(&a.period),
+        "--period {} must be in [0, {MAX_SECONDS}] seconds",
+        a.period
     );
     anyhow::ensure!(
-        a.timeout.is_finite() && a.timeout > 0.0,
-        "--timeout must be > 0"
+        a.timeout.is_finite() && a.timeout > 0.0 && a.timeout <= MAX_SECONDS,
+        "--timeout {} must be in (0, {MAX_SECONDS}] seconds",
+        a.timeout
     );
+    let domain_id = a.topics.domain()?;
     let scene = deocc_io::scene::read_scene(&a.scene)
         .with_context(|| format!("reading the scene {}", a.scene.display()))?;
     let req = deocc_service::request::request_from_scene(&scene, "");
@@ -259,7 +278,7 @@ async fn play(a: PlayArgs) -> Result<()> {
     );
     let n = views.len();
     let cfg = PlayConfig {
-        domain_id: a.topics.domain()?,
+        domain_id,
         rgb_topic: a.topics.rgb,
         depth_topic: a.topics.depth,
         info_topic: a.topics.info,
