@@ -148,6 +148,8 @@ pub struct ObjectsArgs {
     ground_truth_masks: bool,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
+    #[command(flatten)]
+    sensor: crate::sensor::SensorArgs,
 }
 
 fn objects(a: ObjectsArgs) -> Result<()> {
@@ -155,6 +157,7 @@ fn objects(a: ObjectsArgs) -> Result<()> {
         crate::completers::named_chains(a.weights.as_deref(), &["rules", "gldot", "gldot,rules"])?;
     let opts = a.pipeline.options()?;
     let mut preset = deocc_synth::dataset::bench_v1();
+    a.sensor.apply(&mut preset)?;
     if a.tuning {
         preset.name = format!("{} tuning scenes", preset.name);
         preset.seeds = (9_050_000..9_050_000 + a.scenes as u64).collect();
@@ -184,6 +187,8 @@ pub struct PerceptionArgs {
     /// Number of chairs-v1 scenes (hollow-back chairs, the named failure case; 0 skips them).
     #[arg(long, default_value_t = 10)]
     failure_scenes: usize,
+    #[command(flatten)]
+    sensor: crate::sensor::SensorArgs,
 }
 
 fn perception(a: PerceptionArgs) -> Result<()> {
@@ -191,10 +196,13 @@ fn perception(a: PerceptionArgs) -> Result<()> {
         + a.failure_scenes
             .min(deocc_synth::dataset::chairs_v1().seeds.len());
     let pb = crate::progress::bar(total as u64, "scenes");
-    let report =
-        deocc_eval::perception::perception_benchmark(a.scenes, a.failure_scenes, &mut || {
-            pb.inc(1)
-        })?;
+    let sensor = a.sensor.kind()?;
+    let report = deocc_eval::perception::perception_benchmark(
+        a.scenes,
+        a.failure_scenes,
+        sensor,
+        &mut || pb.inc(1),
+    )?;
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())
@@ -211,6 +219,8 @@ pub struct ReconstructionArgs {
     scenes: usize,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
+    #[command(flatten)]
+    sensor: crate::sensor::SensorArgs,
 }
 
 fn reconstruction(a: ReconstructionArgs) -> Result<()> {
@@ -218,8 +228,14 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
     let n = a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
-    let report =
-        deocc_eval::reconstruction::reconstruction_benchmark(&chain, &opts, n, &mut || pb.inc(1))?;
+    let sensor = a.sensor.kind()?;
+    let report = deocc_eval::reconstruction::reconstruction_benchmark(
+        &chain,
+        &opts,
+        n,
+        sensor,
+        &mut || pb.inc(1),
+    )?;
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())
@@ -297,6 +313,9 @@ pub struct AmodalArgs {
     /// Bootstrap resamples of every interval.
     #[arg(long, default_value_t = 1000)]
     bootstrap: usize,
+    /// The sensor of the test pairs rendered on the fly (pairs from --data carry their own).
+    #[command(flatten)]
+    sensor: crate::sensor::SensorArgs,
 }
 
 pub fn run(cmd: EvalCommand) -> Result<()> {
@@ -313,8 +332,20 @@ pub fn run(cmd: EvalCommand) -> Result<()> {
 
 /// Evaluation pairs: from a split's shards if given, else rendered from the test split's first
 /// `scenes` scenes.
-fn test_pairs(data: Option<&PathBuf>, split: &str, scenes: u64) -> Result<PairData> {
+fn test_pairs(
+    data: Option<&PathBuf>,
+    split: &str,
+    scenes: u64,
+    sensor: deocc_synth::sensor::SensorKind,
+) -> Result<PairData> {
     if let Some(dir) = data {
+        if sensor != deocc_synth::sensor::SensorKind::Clean {
+            bail!(
+                "--sensor {} renders test pairs on the fly; pairs from --data carry the sensor \
+                 they were made with (deocc synth pairs --sensor)",
+                sensor.name()
+            );
+        }
         let files = shards(dir, split)
             .with_context(|| format!("{}: cannot list {split} pairs", dir.display()))?;
         if files.is_empty() {
@@ -331,7 +362,10 @@ fn test_pairs(data: Option<&PathBuf>, split: &str, scenes: u64) -> Result<PairDa
         set.extend(&split_scene_pairs(
             Split::Test,
             scene,
-            &PairConfig::default(),
+            &PairConfig {
+                sensor,
+                ..PairConfig::default()
+            },
         )?);
     }
     Ok(PairData::new(set))
@@ -360,7 +394,7 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     if a.sample_flow {
         completer.reads_mean = false;
     }
-    let data = test_pairs(a.data.as_ref(), &a.split, 120)?
+    let data = test_pairs(a.data.as_ref(), &a.split, 120, a.sensor.kind()?)?
         .with_mask_prior(completer.model.config.mask_prior)
         .with_seen_elsewhere(!a.no_seen_elsewhere);
     if !a.no_seen_elsewhere && !data.set.has_elsewhere() {

@@ -16,6 +16,7 @@ mod robot;
 mod robot_eval;
 mod run;
 mod scene_options;
+mod sensor;
 mod serve;
 mod sheet;
 mod synth;

@@ -19,10 +19,8 @@ pub struct GraspArgs {
     /// the planner's and the revolve stage's limits are chosen.
     #[arg(long)]
     tuning: bool,
-    /// Render the scenes with the sensor model (depth noise growing with distance, no depth at
-    /// grazing angles) instead of perfect depth.
-    #[arg(long)]
-    sensor_noise: bool,
+    #[command(flatten)]
+    sensor: crate::sensor::SensorArgs,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
     /// Grasp planner settings (JSON of GraspOptions: gripper geometry, seeds, friction, ...);
@@ -36,10 +34,7 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     let chains = grasp_chains(a.weights.as_ref(), &opts)?;
     let options = crate::robot::grasp_options(a.grasp_options.as_deref())?;
     let mut preset = deocc_synth::dataset::pickup_v1();
-    if a.sensor_noise {
-        preset.config.sensor_noise = true;
-        preset.name = format!("{} with the sensor model", preset.name);
-    }
+    a.sensor.apply(&mut preset)?;
     if a.tuning {
         preset.name = format!("{} tuning scenes", preset.name);
         preset.seeds = (9_250_000..9_250_000 + a.scenes as u64).collect();
@@ -125,10 +120,8 @@ pub struct PlaceArgs {
     /// How many scenes get a picture with --pictures.
     #[arg(long, default_value_t = 12, requires = "pictures")]
     picture_scenes: usize,
-    /// Render the scenes with the sensor model (depth noise growing with distance, no depth at
-    /// grazing angles) instead of perfect depth.
-    #[arg(long)]
-    sensor_noise: bool,
+    #[command(flatten)]
+    sensor: crate::sensor::SensorArgs,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
 }
@@ -137,10 +130,7 @@ pub fn place(a: PlaceArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
     let chains = place_chains(a.weights.as_ref(), &opts)?;
     let mut preset = deocc_synth::dataset::preset(&a.preset)?;
-    if a.sensor_noise {
-        preset.config.sensor_noise = true;
-        preset.name = format!("{} with the sensor model", preset.name);
-    }
+    a.sensor.apply(&mut preset)?;
     if a.tuning {
         let first = preset.seeds[0] + 50_000;
         preset.name = format!("{} tuning scenes", preset.name);

@@ -27,9 +27,8 @@ pub struct SceneOptions {
     /// Include the held-out shapes (vase, L-bracket), as test scenes do.
     #[arg(long)]
     held_out_shapes: bool,
-    /// Add depth noise and drop depth at grazing angles.
-    #[arg(long)]
-    sensor_noise: bool,
+    #[command(flatten)]
+    sensor: crate::sensor::SensorArgs,
     /// Ground-truth surface samples per square metre.
     #[arg(long, default_value_t = 10_000.0)]
     gt_density: f32,
@@ -74,7 +73,7 @@ impl SceneOptions {
                 PathArg::Single => CameraPath::Single,
             },
             held_out_shapes: self.held_out_shapes,
-            sensor_noise: self.sensor_noise,
+            sensor: self.sensor.kind()?,
             gt_points_per_m2: self.gt_density,
             user_meshes,
             ..SceneConfig::default()

@@ -66,11 +66,11 @@ pub struct PairsArgs {
     /// crop empty outside the image as the pipeline's is. Off keeps the splits as they were.
     #[arg(long)]
     edge_objects: bool,
-    /// The condition's depth as the renderer's sensor model measures it (noise growing with
-    /// distance, no depth at grazing angles; targets noise-free): pairs for a model that meets
-    /// a real sensor. Off keeps the splits as they were.
-    #[arg(long)]
-    sensor_noise: bool,
+    /// The condition's depth as a sensor measures it (targets noise-free): pairs for a model
+    /// that meets a real sensor; `random` draws a sensor per scene. Clean keeps the splits as
+    /// they were.
+    #[command(flatten)]
+    sensor: crate::sensor::SensorArgs,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -163,7 +163,7 @@ fn pairs(a: PairsArgs) -> Result<()> {
     let config = PairConfig {
         resolution: a.resolution,
         edge_objects: a.edge_objects,
-        sensor_noise: a.sensor_noise,
+        sensor: a.sensor.kind()?,
         ..PairConfig::default()
     };
     let name = format!("{split:?}").to_lowercase();

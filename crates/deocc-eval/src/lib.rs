@@ -90,3 +90,15 @@ impl From<candle_core::Error> for EvalError {
         EvalError::Model(e.to_string())
     }
 }
+
+/// Renders `preset`'s scenes with `sensor` and says so in its name.
+pub fn with_sensor(
+    preset: &mut deocc_synth::dataset::Preset,
+    sensor: deocc_synth::sensor::SensorKind,
+) {
+    preset.config.sensor = sensor;
+    preset.config.sensor_noise = false;
+    if sensor != deocc_synth::sensor::SensorKind::Clean {
+        preset.name = format!("{} with the {} sensor", preset.name, sensor.name());
+    }
+}

@@ -268,10 +268,12 @@ pub struct PerceptionReport {
 
 fn failure_case(
     scenes: usize,
+    sensor: deocc_synth::sensor::SensorKind,
     tick: &mut dyn FnMut(),
 ) -> Result<FailureCaseFigures, crate::EvalError> {
     use deocc_pipeline::matching::Threshold;
     let mut preset = deocc_synth::dataset::chairs_v1();
+    crate::with_sensor(&mut preset, sensor);
     preset.config.gt_points_per_m2 = 10.0;
     let n = scenes.min(preset.seeds.len());
     let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
@@ -310,10 +312,12 @@ fn failure_case(
 pub fn perception_benchmark(
     scenes: usize,
     failure_scenes: usize,
+    sensor: deocc_synth::sensor::SensorKind,
     tick: &mut dyn FnMut(),
 ) -> Result<PerceptionReport, crate::EvalError> {
     use deocc_pipeline::matching::Threshold;
     let mut preset = deocc_synth::dataset::bench_v1();
+    crate::with_sensor(&mut preset, sensor);
     preset.config.gt_points_per_m2 = 10.0; // ground truth is not used here
     let n = scenes.min(preset.seeds.len());
     let thresholds = [
@@ -375,7 +379,7 @@ pub fn perception_benchmark(
         segmenter_views_per_second: seg_views as f64 / seg_time.max(1e-9),
         segmenter_miou_by_category: seg_ious.per_category(),
         hollow_back_chairs: (failure_scenes > 0)
-            .then(|| failure_case(failure_scenes, tick))
+            .then(|| failure_case(failure_scenes, sensor, tick))
             .transpose()?,
     };
     Ok(report)

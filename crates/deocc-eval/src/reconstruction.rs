@@ -209,11 +209,13 @@ pub fn reconstruction_benchmark(
     chain: &deocc_completion::CompleterChain,
     opts: &deocc_pipeline::PipelineOptions,
     scenes: usize,
+    sensor: deocc_synth::sensor::SensorKind,
     tick: &mut dyn FnMut(),
 ) -> Result<ReconstructionReport, crate::EvalError> {
     use deocc_pipeline::instances::ensure_instances;
     use deocc_pipeline::segment::ConvexitySegmenter;
-    let preset = deocc_synth::dataset::bench_v1();
+    let mut preset = deocc_synth::dataset::bench_v1();
+    crate::with_sensor(&mut preset, sensor);
     let n = scenes.min(preset.seeds.len());
     let (mut vis_figs, mut deo_figs, mut seg_figs) = (Vec::new(), Vec::new(), Vec::new());
     let mut seg_objects_figs = Vec::new();

@@ -31,9 +31,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::generate::generate_scene;
 use crate::ground_truth::{sample_surfaces, seen_flags, GroundTruth};
-use crate::render::{
-    add_sensor_noise, rasterize_coverage, render_scene, shade, Frame, PixelBox, SceneTriangles,
-};
+use crate::render::{rasterize_coverage, render_scene, shade, Frame, PixelBox, SceneTriangles};
 use crate::scene::{CameraPath, Scene, SceneConfig, SceneKind};
 use crate::{Result, SynthError};
 
@@ -150,20 +148,28 @@ pub fn render_view(
 ) -> RenderedView {
     let camera = scene.cameras[view];
     let frame = render_scene(&camera, scene, tris);
-    let rgb = shade(&frame, &camera, scene, tris, [0, 0, 0]);
+    let mut rgb = shade(&frame, &camera, scene, tris, [0, 0, 0]);
     let (w, h) = (frame.width, frame.height);
-    let sensor_depth = if config.sensor_noise {
+    let kind = config.sensor_kind();
+    let render_seed = scene.seed.wrapping_mul(1000).wrapping_add(view as u64);
+    let sensor_depth = if kind != crate::sensor::SensorKind::Clean {
         let mut sensor = frame.clone();
-        add_sensor_noise(
+        crate::sensor::apply(
+            kind,
             &mut sensor,
             &camera,
             tris,
-            scene.seed.wrapping_mul(1000).wrapping_add(view as u64),
+            scene.seed,
+            render_seed,
+            camera.intrinsics.fx(),
         );
         sensor.depth_m
     } else {
         frame.depth_m.clone()
     };
+    if let Some(c) = crate::sensor::scene_colour(kind, scene.seed) {
+        crate::sensor::colour_realism(&mut rgb, &c, render_seed);
+    }
     let depth = DepthMap::new(w, h, sensor_depth).unwrap_or_else(|_| DepthMap::zeros(w, h));
     let mut amodal = Vec::new();
     let mut visibility = Vec::new();

@@ -16,6 +16,7 @@ pub mod mesh;
 pub mod pairs;
 pub mod render;
 pub mod scene;
+pub mod sensor;
 pub mod shapes;
 pub mod sheet;
 pub mod tasks;

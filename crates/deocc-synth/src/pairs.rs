@@ -30,8 +30,9 @@ use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
 use crate::generate::generate_scene;
-use crate::render::{add_sensor_noise, rasterize, shade, Frame, SceneTriangles};
+use crate::render::{rasterize, shade, Frame, SceneTriangles};
 use crate::scene::{CameraPath, Scene, SceneConfig};
+use crate::sensor::SensorKind;
 pub use deocc_io::pairs::{load_pairs, save_pairs, PairSet};
 
 use crate::Result;
@@ -63,6 +64,20 @@ pub struct PairConfig {
     /// Off by default, which keeps the existing splits as they were.
     #[serde(default)]
     pub sensor_noise: bool,
+    /// The sensor of the condition ([`crate::sensor`]; `sensor_noise` is the first model's
+    /// switch). Under `random` every scene gets its own sensor and colour camera.
+    #[serde(default)]
+    pub sensor: crate::sensor::SensorKind,
+}
+
+impl PairConfig {
+    /// The sensor in force: `sensor`, or the first model when only `sensor_noise` is set.
+    pub fn sensor_kind(&self) -> crate::sensor::SensorKind {
+        match (self.sensor, self.sensor_noise) {
+            (crate::sensor::SensorKind::Clean, true) => crate::sensor::SensorKind::Gaussian,
+            (k, _) => k,
+        }
+    }
 }
 
 impl Default for PairConfig {
@@ -77,6 +92,7 @@ impl Default for PairConfig {
             keep_unoccluded: 0.3,
             edge_objects: false,
             sensor_noise: false,
+            sensor: crate::sensor::SensorKind::Clean,
         }
     }
 }
@@ -127,6 +143,8 @@ fn median(mut v: Vec<f32>) -> f32 {
 /// All pairs of one scene. `group_base` makes group ids unique across scenes.
 pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Result<PairSet> {
     let tris = SceneTriangles::new(scene);
+    let kind = config.sensor_kind();
+    let colour = crate::sensor::scene_colour(kind, scene.seed);
     let res = config.resolution;
     let n = (res * res) as usize;
     let mut out = PairSet {
@@ -141,11 +159,16 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
         .enumerate()
         .map(|(v, camera)| {
             let mut frame = crate::render::render_scene(camera, scene, &tris);
-            let rgb = shade(&frame, camera, scene, &tris, [0, 0, 0]).into_raw();
-            if config.sensor_noise {
-                add_sensor_noise(&mut frame, camera, &tris, noise_seed(scene.seed, v as u64));
+            let mut rgb = shade(&frame, camera, scene, &tris, [0, 0, 0]);
+            let seed = noise_seed(scene.seed, v as u64);
+            if kind != SensorKind::Clean {
+                let fx = camera.intrinsics.fx();
+                crate::sensor::apply(kind, &mut frame, camera, &tris, scene.seed, seed, fx);
             }
-            (frame, rgb)
+            if let Some(c) = &colour {
+                crate::sensor::colour_realism(&mut rgb, c, seed);
+            }
+            (frame, rgb.into_raw())
         })
         .collect();
     let object_pixels: Vec<std::collections::HashMap<u16, Vec<u32>>> = views
@@ -235,12 +258,16 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
             );
             // What the sensor measured of the crop (the shading stays the noise-free render's).
             let mut sensed = full.clone();
-            if config.sensor_noise {
-                add_sensor_noise(
+            let crop_seed = noise_seed(scene.seed, 1000 + (ci * 4096 + k) as u64);
+            if kind != SensorKind::Clean {
+                crate::sensor::apply(
+                    kind,
                     &mut sensed,
                     &crop,
                     &tris,
-                    noise_seed(scene.seed, 1000 + (ci * 4096 + k) as u64),
+                    scene.seed,
+                    crop_seed,
+                    camera.intrinsics.fx(),
                 );
             }
             let visible: Vec<bool> = full
@@ -271,7 +298,10 @@ pub fn scene_pairs(scene: &Scene, config: &PairConfig, group_base: u32) -> Resul
                     .collect(),
             );
             let s = crop_side * m / camera.intrinsics.fx();
-            let rgb = shade(&full, &crop, scene, &tris, [0, 0, 0]);
+            let mut rgb = shade(&full, &crop, scene, &tris, [0, 0, 0]);
+            if let Some(c) = &colour {
+                crate::sensor::colour_realism(&mut rgb, c, crop_seed);
+            }
             let whole = shade(&alone, &crop, scene, &tris, [255, 255, 255]);
             out.crop_rgb.extend_from_slice(rgb.as_raw());
             out.whole_rgb.extend_from_slice(whole.as_raw());

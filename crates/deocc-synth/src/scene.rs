@@ -75,9 +75,22 @@ pub struct SceneConfig {
     pub extra_families: bool,
     /// Ground-truth surface samples per square metre.
     pub gt_points_per_m2: f32,
-    /// Add depth noise and drop depth at grazing angles, like a structured-light sensor.
+    /// The project's first sensor model ([`crate::sensor::SensorKind::Gaussian`]); kept so that
+    /// older figures and files reproduce. `sensor` is the general choice.
     pub sensor_noise: bool,
+    /// The depth sensor that measures every view ([`crate::sensor`]).
+    pub sensor: crate::sensor::SensorKind,
     pub user_meshes: Vec<UserMesh>,
+}
+
+impl SceneConfig {
+    /// The sensor in force: `sensor`, or the first model when only `sensor_noise` is set.
+    pub fn sensor_kind(&self) -> crate::sensor::SensorKind {
+        match (self.sensor, self.sensor_noise) {
+            (crate::sensor::SensorKind::Clean, true) => crate::sensor::SensorKind::Gaussian,
+            (k, _) => k,
+        }
+    }
 }
 
 impl Default for SceneConfig {
@@ -99,6 +112,7 @@ impl Default for SceneConfig {
             extra_families: false,
             gt_points_per_m2: 10_000.0,
             sensor_noise: false,
+            sensor: crate::sensor::SensorKind::Clean,
             user_meshes: Vec::new(),
         }
     }
