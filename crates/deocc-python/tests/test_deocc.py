@@ -6,6 +6,7 @@ Run by scripts/test_python.sh: python tests/test_deocc.py PATH_TO_DEOCC_BINARY
 """
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -174,6 +175,32 @@ class Deocc(unittest.TestCase):
                 deocc.grasp(res["points"], res["instance"], target, options=options)
         with self.assertRaisesRegex(ValueError, "JSON object"):
             deocc.run(small(self.frames, 1), completer="rules", options=[])
+
+    def test_ctrl_c_stops_a_run(self):
+        # A run goes on without the GIL; Ctrl-C used to be ignored until it ended.
+        scene, _ = cli_example()
+        code = (
+            "import deocc, sys, time\n"
+            f"frames, _ = deocc.read_scene({scene!r})\n"
+            "print('ready', flush=True)\n"
+            "t = time.time()\n"
+            "try:\n"
+            "    for _ in range(20):\n"
+            "        deocc.run(frames, completer='gldot,rules')\n"
+            "except KeyboardInterrupt:\n"
+            "    print(f'interrupted after {time.time() - t:.2f}', flush=True)\n"
+            "    sys.exit(3)\n"
+        )
+        p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+        self.assertEqual(p.stdout.readline().strip(), "ready")
+        time.sleep(1.5)
+        t = time.time()
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=60)
+        self.assertEqual(p.returncode, 3, out + err)
+        self.assertIn("interrupted", out)
+        self.assertLess(time.time() - t, 20.0)
 
     def test_the_service_client(self):
         with socket.socket() as s:
