@@ -189,6 +189,12 @@ pub struct PerceptionArgs {
     failure_scenes: usize,
     #[command(flatten)]
     sensor: crate::sensor::SensorArgs,
+    /// Segment the rendered depth as it is, without the pipeline's depth front end.
+    #[arg(long)]
+    no_depth_clean: bool,
+    /// The depth front end's settings are the options file's `depth_clean`.
+    #[command(flatten)]
+    pipeline: crate::completers::PipelineArgs,
 }
 
 fn perception(a: PerceptionArgs) -> Result<()> {
@@ -197,10 +203,13 @@ fn perception(a: PerceptionArgs) -> Result<()> {
             .min(deocc_synth::dataset::chairs_v1().seeds.len());
     let pb = crate::progress::bar(total as u64, "scenes");
     let sensor = a.sensor.kind()?;
+    let mut clean = a.pipeline.options()?.depth_clean;
+    clean.enabled &= !a.no_depth_clean;
     let report = deocc_eval::perception::perception_benchmark(
         a.scenes,
         a.failure_scenes,
         sensor,
+        &clean,
         &mut || pb.inc(1),
     )?;
     pb.finish_and_clear();

@@ -6,9 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use deocc_geometry::camera::Camera;
 use deocc_geometry::PointCloud;
-use deocc_pipeline::instances::ensure_instances;
 use deocc_pipeline::output::Staging;
-use deocc_pipeline::registration::register_unposed;
 use deocc_pipeline::segment::ConvexitySegmenter;
 use deocc_pipeline::{read_scene, PipelineOptions};
 use deocc_robot::picture::{draw_grasp, place_map_image};
@@ -37,29 +35,32 @@ pub struct SceneArgs {
 /// and how many frames it has.
 fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<(PointCloud, Camera, usize)> {
     let mut scene = read_scene(&a.scene)?;
-    // The depth the sensor did not measure: a learned source first, the interpolation inside
-    // the run (`--fill-depth`).
-    let mut fills = match a.depth.model()? {
-        Some(model) => deocc_pipeline::depth::fill_scene_depth(
-            &mut scene,
-            &model,
-            &deocc_pipeline::depth::DepthFillOptions::default(),
-        )?,
-        None => Vec::new(),
-    };
     let mut options = options.clone();
     a.depth.apply(&mut options);
     let options = &options;
-    let registration = register_unposed(&mut scene)?;
-    ensure_instances(&mut scene, &ConvexitySegmenter::default())?;
+    let model = a.depth.model()?;
+    let prepared = deocc_pipeline::front::prepare(
+        &mut scene,
+        options,
+        model
+            .as_ref()
+            .map(|m| m as &dyn deocc_pipeline::depth::DepthSource),
+        &ConvexitySegmenter::default(),
+        false,
+    )?;
     let chain = if a.observed {
         deocc_completion::CompleterChain::default()
     } else {
         crate::completers::chain(&a.completers)?
     };
-    let out = deocc_pipeline::run(&scene, &chain, options, &registration)?;
-    fills.extend(out.report.depth_fill.iter().cloned());
-    crate::run::print_depth_fill(&fills);
+    let out = deocc_pipeline::run_prepared(
+        &scene,
+        &chain,
+        options,
+        prepared,
+        &deocc_pipeline::Unobserved,
+    )?;
+    crate::run::print_depth_fill(&out.report.depth_fill);
     let camera = scene.frames[0].camera;
     let frames = scene.frames.len();
     Ok((

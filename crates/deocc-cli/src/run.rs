@@ -5,10 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::Args;
-use deocc_pipeline::depth::{fill_scene_depth, DepthFillOptions, DepthSource};
-use deocc_pipeline::instances::ensure_instances;
+use deocc_pipeline::depth::DepthSource;
 use deocc_pipeline::output::{write_output, Staging};
-use deocc_pipeline::registration::register_unposed;
 use deocc_pipeline::segment::ConvexitySegmenter;
 use deocc_pipeline::{read_scene, PipelineOptions};
 
@@ -81,24 +79,21 @@ pub fn run_scene(
         }
     };
     let mut scene = read_scene(&input_dir)?;
-    // A learned depth source fills first; the options' interpolation runs inside the pipeline.
-    let model_fill = match depth {
-        Some(source) => fill_scene_depth(&mut scene, source, &DepthFillOptions::default())?,
-        None => Vec::new(),
-    };
-    let registration = register_unposed(&mut scene)?;
-    if segment {
-        for f in &mut scene.frames {
-            f.instances = None;
-        }
+    let prepared = deocc_pipeline::front::prepare(
+        &mut scene,
+        opts,
+        depth,
+        &ConvexitySegmenter::default(),
+        segment,
+    )?;
+    if prepared.segmented > 0 {
+        eprintln!(
+            "segmented the frames with the default RGB-D segmenter: {} instances across views",
+            prepared.segmented
+        );
     }
-    let segmented = ensure_instances(&mut scene, &ConvexitySegmenter::default())?;
-    if segmented > 0 {
-        eprintln!("segmented the frames with the default RGB-D segmenter: {segmented} instances across views");
-    }
-    let mut result = deocc_pipeline::run(&scene, chain, opts, &registration)?;
-    let interpolated = std::mem::take(&mut result.report.depth_fill);
-    result.report.depth_fill = model_fill.into_iter().chain(interpolated).collect();
+    let result =
+        deocc_pipeline::run_prepared(&scene, chain, opts, prepared, &deocc_pipeline::Unobserved)?;
     print_depth_fill(&result.report.depth_fill);
     let gt_path = input_dir.join("ground_truth.ply");
     let evaluation = if gt_path.exists() {

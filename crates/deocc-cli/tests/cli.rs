@@ -287,15 +287,16 @@ fn serve_refuses_bad_settings_naming_the_option() {
 
 /// `deocc run --mcap` writes a recording an MCAP reader opens: every frame's images and
 /// calibration, the transforms, the cloud by provenance, and the grasps and placement map
-/// planned on the completed cloud (a scene whose completed objects the planner can grasp:
-/// in seed 9000000's only the rules' uncapped far side of a chair gave antipodal pairs).
+/// planned on the completed cloud (a scene whose completed objects the planner can grasp at
+/// 160 x 120: in seed 9000000's only the rules' uncapped far side of a chair gave antipodal
+/// pairs, and since the depth front end 9000001's none; 9000003's do).
 #[test]
 fn run_writes_an_mcap_recording() {
     let dir = tempfile::tempdir().unwrap();
     let scenes = dir.path().join("scenes");
     let o = deocc()
         .args([
-            "synth", "scenes", "--count", "1", "--seed", "9000001", "--views", "2",
+            "synth", "scenes", "--count", "1", "--seed", "9000003", "--views", "2",
         ])
         .args([
             "--width",
@@ -401,11 +402,15 @@ fn run_fills_depth_holes_and_refuses_a_missing_depth_model() {
             .sum::<u64>()
             > 0
     );
-    // The scene's own files are not changed.
+    // The scene's own files are not changed: what the fill saw measured is the file's measured
+    // pixels less what the depth front end removed before it.
     let depth = deocc_io::images::read_depth_png(&scene.join("depth/000000.png")).unwrap();
+    let cleaned = &report["depth_clean"][0];
+    let removed =
+        cleaned["outliers_removed"].as_u64().unwrap() + cleaned["specks_removed"].as_u64().unwrap();
     assert_eq!(
         depth.valid_count() as u64,
-        fills[0]["measured"].as_u64().unwrap()
+        fills[0]["measured"].as_u64().unwrap() + removed
     );
 
     // The robot tasks take the same flag.

@@ -102,3 +102,14 @@ pub fn with_sensor(
         preset.name = format!("{} with the {} sensor", preset.name, sensor.name());
     }
 }
+
+/// The product's depth front end ([`deocc_pipeline::depth_clean`]) on every view of a rendered
+/// scene, so that a benchmark judges what the pipeline sees.
+pub fn clean_views(
+    r: &mut deocc_synth::dataset::RenderedScene,
+    opts: &deocc_pipeline::depth_clean::DepthCleanOptions,
+) {
+    for v in &mut r.views {
+        deocc_pipeline::depth_clean::clean_depth(&mut v.depth, opts);
+    }
+}

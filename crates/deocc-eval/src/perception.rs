@@ -244,6 +244,8 @@ pub struct FailureCaseFigures {
 pub struct PerceptionReport {
     pub benchmark: String,
     pub scenes: usize,
+    /// Whether the views' depth went through the depth front end first (as in the pipeline).
+    pub depth_clean: bool,
     pub occlusion_precision: f64,
     pub occlusion_recall: f64,
     occlusion_f1: f64,
@@ -269,6 +271,7 @@ pub struct PerceptionReport {
 fn failure_case(
     scenes: usize,
     sensor: deocc_synth::sensor::SensorKind,
+    clean: &deocc_pipeline::depth_clean::DepthCleanOptions,
     tick: &mut dyn FnMut(),
 ) -> Result<FailureCaseFigures, crate::EvalError> {
     use deocc_pipeline::matching::Threshold;
@@ -281,7 +284,8 @@ fn failure_case(
     let mut counts = DetectionCounts::default();
     let (mut adaptive, mut fixed, mut k) = (0.0, 0.0, 0usize);
     for &seed in &preset.seeds[..n] {
-        let r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        let mut r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        crate::clean_views(&mut r, clean);
         segmenter_figures(&r, &segmenter, &mut counts, &mut ious);
         if let (Some(a), Some(f)) = (
             grouping(&r, Threshold::Adaptive).1,
@@ -313,6 +317,7 @@ pub fn perception_benchmark(
     scenes: usize,
     failure_scenes: usize,
     sensor: deocc_synth::sensor::SensorKind,
+    clean: &deocc_pipeline::depth_clean::DepthCleanOptions,
     tick: &mut dyn FnMut(),
 ) -> Result<PerceptionReport, crate::EvalError> {
     use deocc_pipeline::matching::Threshold;
@@ -333,7 +338,8 @@ pub fn perception_benchmark(
     let (mut seg_time, mut seg_views) = (0.0f64, 0usize);
     let mut sums = vec![(0.0f64, 0.0f64, 0usize, 0.0f64); thresholds.len()];
     for &seed in &preset.seeds[..n] {
-        let r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        let mut r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
+        crate::clean_views(&mut r, clean);
         occlusion_counts(&r, &mut counts);
         let t0 = std::time::Instant::now();
         segmenter_figures(&r, &segmenter, &mut seg_counts, &mut seg_ious);
@@ -363,6 +369,7 @@ pub fn perception_benchmark(
     let report = PerceptionReport {
         benchmark: preset.name.clone(),
         scenes: n,
+        depth_clean: clean.enabled,
         occlusion_precision: counts.precision(),
         occlusion_recall: counts.recall(),
         occlusion_f1: counts.f1(),
@@ -379,7 +386,7 @@ pub fn perception_benchmark(
         segmenter_views_per_second: seg_views as f64 / seg_time.max(1e-9),
         segmenter_miou_by_category: seg_ious.per_category(),
         hollow_back_chairs: (failure_scenes > 0)
-            .then(|| failure_case(failure_scenes, sensor, tick))
+            .then(|| failure_case(failure_scenes, sensor, clean, tick))
             .transpose()?,
     };
     Ok(report)

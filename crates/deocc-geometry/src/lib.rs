@@ -19,6 +19,7 @@ pub mod error;
 pub mod knn;
 pub mod mask2d;
 pub mod metrics;
+pub mod noise;
 pub mod normals;
 pub mod reproject;
 pub mod robust;

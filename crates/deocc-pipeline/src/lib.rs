@@ -32,7 +32,9 @@ pub mod complete;
 pub mod crops;
 pub mod cuboid;
 pub mod depth;
+pub mod depth_clean;
 pub mod error;
+pub mod front;
 pub mod fuse;
 pub mod gate;
 pub mod instances;
@@ -136,15 +138,24 @@ pub fn run_in_memory(
     segment: bool,
     observer: &dyn Observer,
 ) -> Result<PipelineOutput, PipelineError> {
-    opts.validate()?;
-    let registration = registration::register_unposed(&mut scene)?;
-    if segment {
-        for f in &mut scene.frames {
-            f.instances = None;
-        }
-    }
-    instances::ensure_instances(&mut scene, segmenter)?;
-    run_observed(&scene, chain, opts, &registration, observer)
+    let prepared = front::prepare(&mut scene, opts, None, segmenter, segment)?;
+    run_prepared(&scene, chain, opts, prepared, observer)
+}
+
+/// [`run_observed`] on a scene the front half made ready ([`front::prepare`]); the report
+/// carries what the front half did (its depth fills first, then the run's own).
+pub fn run_prepared(
+    scene: &SceneInput,
+    chain: &CompleterChain,
+    opts: &PipelineOptions,
+    prepared: front::Prepared,
+    observer: &dyn Observer,
+) -> Result<PipelineOutput, PipelineError> {
+    let mut out = run_observed(scene, chain, opts, &prepared.registration, observer)?;
+    let own = std::mem::take(&mut out.report.depth_fill);
+    out.report.depth_fill = prepared.depth_fill.into_iter().chain(own).collect();
+    out.report.depth_clean = prepared.depth_clean;
+    Ok(out)
 }
 
 /// [`run`], telling `observer` of each stage; it may stop the run between stages.
@@ -590,5 +601,6 @@ fn make_report(
         registration: registration.clone(),
         peak_rss_mib: report::peak_rss_mib(),
         depth_fill: Vec::new(),
+        depth_clean: Vec::new(),
     }
 }

@@ -1,6 +1,12 @@
 //! Stage: occlusion. Per view, two instance masks that touch, the farther one (by the median depth step
 //! across their shared boundary) is occluded by the nearer one. Also records truncation by the
 //! image border and missing depth along an instance's boundary.
+//!
+//! A band without depth between two masks counts as a shared boundary, and the depth order is
+//! judged across it: a structured-light projector or a stereo camera's second eye leaves such a
+//! band beside every near edge (the far surface there is in the emitter's shadow), so the masks
+//! of an occluder and what it hides touch only through pixels without depth. Bands up to
+//! [`max_band_px`] wide are crossed, through pixels of the two masks or of none.
 
 use std::collections::BTreeMap;
 
@@ -30,9 +36,16 @@ impl MaskOcclusion {
     }
 }
 
+/// The widest band without depth crossed between two masks: 1/40 of the image width (16 px at
+/// 640, the shadow of an edge 1 m in front of a surface 0.5 m behind it at a 7.5 cm baseline).
+pub fn max_band_px(width: usize) -> usize {
+    (width / 40).max(4)
+}
+
 /// Occlusion analysis of one view.
 pub fn analyse_view(instances: &InstanceMap, depth: &DepthMap) -> Vec<MaskOcclusion> {
     let (w, h) = (instances.width as usize, instances.height as usize);
+    let band = max_band_px(w);
     let ids = &instances.ids;
     let d = depth.data();
     // depth(a) - depth(b) across every boundary pixel pair (a, b), keyed by (a, b).
@@ -65,6 +78,13 @@ pub fn analyse_view(instances: &InstanceMap, depth: &DepthMap) -> Vec<MaskOcclus
                 e.0 += 1;
                 if d[j] <= 0.0 || d[i] <= 0.0 {
                     e.1 += 1;
+                    // Across a band without depth (each pair once: forward directions only).
+                    if d[i] > 0.0 && d[j] <= 0.0 && du >= 0 && dv >= 0 {
+                        if let Some((c, k)) = across_band(ids, d, w, h, (u, v), (du, dv), a, band) {
+                            steps.entry((a, c)).or_default().push(d[i] - d[k]);
+                            steps.entry((c, a)).or_default().push(d[k] - d[i]);
+                        }
+                    }
                     continue;
                 }
                 if b != 0 && du >= 0 && dv >= 0 {
@@ -104,6 +124,43 @@ pub fn analyse_view(instances: &InstanceMap, depth: &DepthMap) -> Vec<MaskOcclus
         .collect()
 }
 
+/// From pixel `(u, v)` of mask `a` along `(du, dv)`, across pixels without depth that belong to
+/// `a` or to no mask: the first pixel with depth, if it lies at most `band` pixels on and belongs
+/// to another mask (its id and index).
+#[allow(clippy::too_many_arguments)]
+fn across_band(
+    ids: &[u16],
+    d: &[f32],
+    w: usize,
+    h: usize,
+    (u, v): (usize, usize),
+    (du, dv): (i64, i64),
+    a: u16,
+    band: usize,
+) -> Option<(u16, usize)> {
+    let mut other: Option<u16> = None;
+    for k in 1..=band as i64 + 1 {
+        let (x, y) = (u as i64 + du * k, v as i64 + dv * k);
+        if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+            return None;
+        }
+        let j = y as usize * w + x as usize;
+        let id = ids[j];
+        if d[j] > 0.0 {
+            return (id != 0 && id != a && other.is_none_or(|o| o == id)).then_some((id, j));
+        }
+        // A band pixel of a third mask: not a boundary between these two.
+        if id != 0 && id != a {
+            match other {
+                None => other = Some(id),
+                Some(o) if o != id => return None,
+                _ => {}
+            }
+        }
+    }
+    None
+}
+
 /// The instances to complete, each with its candidate views `(view, visible pixels)`: an
 /// instance occluded in some view (and not truncated there, not room structure) with those
 /// views; with `unoccluded_too`, also every other non-structure instance with every view it is
@@ -137,4 +194,63 @@ pub fn instances_to_complete(
         }
     }
     occluded
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A near mask (1 m, left) and a far one (2 m, right) separated by `band` pixels without depth
+    /// whose ids are `band_id`.
+    fn pair(band: usize, band_id: u16) -> (InstanceMap, DepthMap) {
+        let (w, h) = (400usize, 20usize);
+        let mut ids = vec![0u16; w * h];
+        let mut d = vec![0f32; w * h];
+        for v in 0..h {
+            for u in 10..390 {
+                let i = v * w + u;
+                if u < 60 {
+                    (ids[i], d[i]) = (1, 1.0);
+                } else if u < 60 + band {
+                    ids[i] = band_id;
+                } else {
+                    (ids[i], d[i]) = (2, 2.0);
+                }
+            }
+        }
+        (
+            InstanceMap {
+                width: w as u32,
+                height: h as u32,
+                ids,
+            },
+            DepthMap::new(w as u32, h as u32, d).unwrap(),
+        )
+    }
+
+    fn occluded(masks: &[MaskOcclusion], id: u16) -> Vec<u16> {
+        masks
+            .iter()
+            .find(|m| m.instance_id == id)
+            .map(|m| m.occluded_by.clone())
+            .unwrap_or_default()
+    }
+
+    #[test]
+    fn the_depth_order_is_judged_across_a_shadow_band() {
+        // The band is the far object's (ground-truth masks), or nobody's (a segmenter's).
+        for band_id in [2, 0] {
+            let (map, depth) = pair(8, band_id);
+            let m = analyse_view(&map, &depth);
+            assert_eq!(occluded(&m, 2), vec![1], "band of {band_id}");
+            assert!(occluded(&m, 1).is_empty());
+        }
+        // Wider than the widest band crossed (400 / 40 = 10 px here): no verdict.
+        let (map, depth) = pair(11, 0);
+        assert_eq!(max_band_px(400), 10);
+        assert!(occluded(&analyse_view(&map, &depth), 2).is_empty());
+        // A band through a third mask is no boundary between these two.
+        let (map, depth) = pair(3, 7);
+        assert!(occluded(&analyse_view(&map, &depth), 2).is_empty());
+    }
 }

@@ -143,6 +143,9 @@ pub struct PipelineOptions {
     /// pixels of a row or column at most this many pixels apart ([`crate::depth::InterpolatedDepth`];
     /// 0 = off, the default; `deocc run --fill-depth` sets 8). Measured pixels never change.
     pub fill_depth_max_gap_px: u32,
+    /// The depth front end ([`crate::depth_clean`]): outliers, flying pixels and specks
+    /// removed, surfaces smoothed without crossing edges, in units of each frame's own noise.
+    pub depth_clean: crate::depth_clean::DepthCleanOptions,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -251,6 +254,7 @@ impl Default for PipelineOptions {
             generated_uncertain_to_rules: GENERATED_UNCERTAIN_TO_RULES,
             skip_observed_far_side: SKIP_OBSERVED_FAR_SIDE,
             fill_depth_max_gap_px: 0,
+            depth_clean: crate::depth_clean::DepthCleanOptions::default(),
         }
     }
 }
@@ -320,6 +324,7 @@ impl PipelineOptions {
 
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), PipelineError> {
+        self.depth_clean.validate()?;
         if self.fill_depth_max_gap_px > 64 {
             return Err(bad(
                 "fill_depth_max_gap_px",

@@ -126,6 +126,9 @@ pub struct RunReport {
     /// [`PipelineOptions::fill_depth_max_gap_px`]; empty when the sensor's depth was used as it
     /// is.
     pub depth_fill: Vec<crate::depth::DepthFillReport>,
+    /// What the depth front end did to each frame ([`crate::depth_clean`]): its noise before and
+    /// after, the outliers and specks removed, the pixels smoothed.
+    pub depth_clean: Vec<crate::depth_clean::DepthCleanRecord>,
 }
 
 /// The process's peak resident set size so far (Linux: `VmHWM` of /proc/self/status), MiB.

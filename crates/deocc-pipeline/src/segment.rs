@@ -19,6 +19,7 @@
 //! `deocc eval perception`: a chair's back stands on its seat and stays a segment of its own.
 
 use deocc_geometry::camera::Camera;
+use deocc_geometry::noise::DepthNoise;
 use deocc_geometry::DepthMap;
 use deocc_io::images::InstanceMap;
 use deocc_io::scene::Frame;
@@ -46,7 +47,8 @@ pub struct ConvexitySegmenter {
     /// centimetres apart in depth, but not one surface.
     pub step_abs_m: f32,
     pub step_rel: f32,
-    /// Normals are estimated from neighbours this many pixels away (noise against detail).
+    /// Normals are estimated from neighbours this many pixels away (noise against detail); next
+    /// to missing depth, from the farthest measured neighbour up to that far on each side.
     pub normal_step: usize,
     /// Tolerance of the concavity test, `(n_i - n_j) . (p_i - p_j) >= -tol * |p_i - p_j|`: absorbs
     /// normal noise on flat surfaces; a crease smoothed over a few pixels still fails it.
@@ -75,6 +77,10 @@ pub struct ConvexitySegmenter {
     pub max_object_extent_m: f32,
     /// Two segments touch when they share at least this many neighbouring pixel pairs.
     pub min_contact_px: usize,
+    /// The depth tolerances grow by this many times the frame's own depth noise above its
+    /// 0.5 mm floor ([`DepthNoise::estimate`], at each pixel's depth), so that the same settings
+    /// hold on exact depth and on a real sensor's; 0 = fixed tolerances only.
+    pub noise_sigmas: f32,
 }
 
 impl Default for ConvexitySegmenter {
@@ -97,6 +103,7 @@ impl Default for ConvexitySegmenter {
             hang_gap_m: 0.15,
             max_object_extent_m: 2.2,
             min_contact_px: 4,
+            noise_sigmas: 3.0,
         }
     }
 }
@@ -116,21 +123,47 @@ fn find(parent: &mut [u32], i: u32) -> u32 {
 }
 
 impl ConvexitySegmenter {
-    /// Camera-frame points and unit normals (zero where unknown).
-    fn geometry(&self, depth: &DepthMap, camera: &Camera) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
+    /// Camera-frame points and unit normals (zero where unknown), from neighbours `s` pixels away.
+    fn geometry(
+        &self,
+        depth: &DepthMap,
+        camera: &Camera,
+        s: usize,
+    ) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
         let (w, h) = (depth.width() as usize, depth.height() as usize);
         let k = &camera.intrinsics;
         let d = depth.data();
         let pts: Vec<Point3<f32>> = (0..w * h)
             .map(|i| k.unproject((i % w) as f32 + 0.5, (i / w) as f32 + 0.5, d[i]))
             .collect();
-        let s = self.normal_step;
         let mut normals = vec![Vector3::zeros(); w * h];
-        for v in s..h.saturating_sub(s) {
-            for u in s..w.saturating_sub(s) {
+        // The farthest measured pixel up to `s` away along (du, dv), or `i` itself: next to a
+        // hole (a real sensor has many) the normal comes from the side that is measured.
+        let reach = |u: usize, v: usize, du: i64, dv: i64| -> usize {
+            for o in (1..=s as i64).rev() {
+                let (x, y) = (u as i64 + du * o, v as i64 + dv * o);
+                if x >= 0 && y >= 0 && x < w as i64 && y < h as i64 {
+                    let j = y as usize * w + x as usize;
+                    if d[j] > 0.0 {
+                        return j;
+                    }
+                }
+            }
+            v * w + u
+        };
+        for v in 1..h.saturating_sub(1) {
+            for u in 1..w.saturating_sub(1) {
                 let i = v * w + u;
-                let (l, r, t, b) = (i - s, i + s, i - s * w, i + s * w);
-                if [i, l, r, t, b].iter().any(|&j| d[j] <= 0.0) {
+                if d[i] <= 0.0 {
+                    continue;
+                }
+                let (l, r, t, b) = (
+                    reach(u, v, -1, 0),
+                    reach(u, v, 1, 0),
+                    reach(u, v, 0, -1),
+                    reach(u, v, 0, 1),
+                );
+                if l == r || t == b {
                     continue;
                 }
                 let n = (pts[r] - pts[l]).cross(&(pts[b] - pts[t]));
@@ -329,9 +362,21 @@ impl ConvexitySegmenter {
     pub fn segment_depth(&self, depth: &DepthMap, camera: &Camera) -> InstanceMap {
         let (w, h) = (depth.width() as usize, depth.height() as usize);
         let d = depth.data();
-        let (pts, normals) = self.geometry(depth, camera);
+        let noise = if self.noise_sigmas > 0.0 {
+            DepthNoise::estimate(depth)
+        } else {
+            DepthNoise::default()
+        };
+        let (pts, normals) = self.geometry(depth, camera, self.normal_step);
         let mut parent: Vec<u32> = (0..(w * h) as u32).collect();
         let k = self.crease_reach;
+        // The noise's share of a tolerance at depth z (two pixels' noise), above the floor that
+        // the fixed tolerances were set for (exact depth in millimetre PNGs): exact depth is
+        // segmented as it always was.
+        let slack = |z: f32| {
+            let excess = (noise.sigma(z) - deocc_geometry::noise::SIGMA_FLOOR_M).max(0.0);
+            self.noise_sigmas * excess * std::f32::consts::SQRT_2
+        };
         let cos_smooth = self.smooth_deg.to_radians().cos();
         // `step`: 1 for a horizontal neighbour pair, w for a vertical one.
         let connect = |i: usize, j: usize, step: usize| -> bool {
@@ -339,13 +384,14 @@ impl ConvexitySegmenter {
             if zi <= 0.0 || zj <= 0.0 {
                 return false;
             }
-            if (zi - zj).abs() > self.depth_abs_m + self.depth_rel * zi.min(zj) {
+            if (zi - zj).abs() > self.depth_abs_m + self.depth_rel * zi.min(zj) + slack(zi.min(zj))
+            {
                 return false;
             }
             // Each neighbour's tangent plane must predict the other's depth along its ray: a box's
             // top and the table just behind it are parallel, a few centimetres apart, and pass
             // every other test.
-            let tol = self.step_abs_m + self.step_rel * zi.min(zj);
+            let tol = self.step_abs_m + self.step_rel * zi.min(zj) + slack(zi.min(zj));
             for (from, to, z_to) in [(i, j, zj), (j, i, zi)] {
                 let n = normals[from];
                 if n == Vector3::zeros() {
@@ -358,12 +404,27 @@ impl ConvexitySegmenter {
             }
             // Judge the crease between (i, j) from a little way off on either side: normals
             // estimated right at a crease blend both surfaces and hide it.
-            let (a, b) = match (i.checked_sub(k * step), j + k * step) {
-                (Some(a), b) if b < w * h && (step != 1 || (a / w == i / w && b / w == j / w)) => {
-                    (a, b)
+            // The farthest of 1..=k pixels out on each side that has depth and a normal (the
+            // pixel itself when none has).
+            let out = |from: usize, towards: bool| -> usize {
+                for kk in (1..=k).rev() {
+                    let o = if towards {
+                        from.checked_add(kk * step).filter(|&x| x < w * h)
+                    } else {
+                        from.checked_sub(kk * step)
+                    };
+                    if let Some(o) = o {
+                        if (step != 1 || o / w == from / w)
+                            && d[o] > 0.0
+                            && normals[o] != Vector3::zeros()
+                        {
+                            return o;
+                        }
+                    }
                 }
-                _ => (i, j),
+                from
             };
+            let (a, b) = (out(i, false), out(j, true));
             let (na, nb) = (normals[a], normals[b]);
             if na == Vector3::zeros() || nb == Vector3::zeros() || d[a] <= 0.0 || d[b] <= 0.0 {
                 // No normal (image border, next to missing depth): do not connect, or creases that

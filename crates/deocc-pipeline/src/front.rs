@@ -1,0 +1,64 @@
+//! The front half: a scene as read, made ready for the run. One function for every caller (the
+//! CLI's `run`, `batch`, `grasp` and `place`, the service, Python, ROS 2), in this order:
+//!
+//! 1. a learned depth source (when the caller has one) fills the pixels the sensor did not
+//!    measure ([`crate::depth::fill_scene_depth`]);
+//! 2. the depth front end cleans every frame in units of its own noise ([`crate::depth_clean`]);
+//! 3. frames without poses are registered ([`crate::registration::register_unposed`]);
+//! 4. frames without instance maps (every frame with `segment`) are segmented
+//!    ([`crate::instances::ensure_instances`]).
+//!
+//! Then [`crate::run_prepared`] runs the pipeline and puts what the front half did into the
+//! report.
+
+use deocc_io::scene::SceneInput;
+
+use crate::depth::{DepthFillOptions, DepthFillReport, DepthSource};
+use crate::depth_clean::{clean_depth, DepthCleanRecord};
+use crate::segment::Segmenter;
+use crate::{PipelineError, PipelineOptions, Registration};
+
+/// What the front half did.
+#[derive(Debug, Clone, Default)]
+pub struct Prepared {
+    pub registration: Registration,
+    pub depth_fill: Vec<DepthFillReport>,
+    pub depth_clean: Vec<DepthCleanRecord>,
+    /// Instances the segmenter found across views (0 when every frame came with masks).
+    pub segmented: usize,
+}
+
+/// Makes `scene` ready for the run (see the module docs).
+pub fn prepare(
+    scene: &mut SceneInput,
+    opts: &PipelineOptions,
+    depth: Option<&dyn DepthSource>,
+    segmenter: &dyn Segmenter,
+    segment: bool,
+) -> Result<Prepared, PipelineError> {
+    opts.validate()?;
+    let depth_fill = match depth {
+        Some(source) => {
+            crate::depth::fill_scene_depth(scene, source, &DepthFillOptions::default())?
+        }
+        None => Vec::new(),
+    };
+    let depth_clean = scene
+        .frames
+        .iter_mut()
+        .map(|f| clean_depth(&mut f.depth, &opts.depth_clean))
+        .collect();
+    let registration = crate::registration::register_unposed(scene)?;
+    if segment {
+        for f in &mut scene.frames {
+            f.instances = None;
+        }
+    }
+    let segmented = crate::instances::ensure_instances(scene, segmenter)?;
+    Ok(Prepared {
+        registration,
+        depth_fill,
+        depth_clean,
+        segmented,
+    })
+}
