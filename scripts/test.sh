@@ -25,6 +25,6 @@ deny deocc-pipeline candle-core "the pipeline talks to completers through deocc-
 # --all-features: the ROS 2 bridge (deocc-ros2's `ros2` feature) and its loopback test, which
 # needs a large UDP receive buffer.
 bash scripts/dds-buffers.sh
-RUST_TEST_THREADS=2 cargo test --locked --workspace --all-features --release
+RUST_TEST_THREADS=2 cargo test --locked --workspace --all-features --release --no-fail-fast
 # The Python package: wheel built, installed in a venv, tested against the CLI.
 bash scripts/test_python.sh

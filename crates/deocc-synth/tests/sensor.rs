@@ -65,6 +65,16 @@ fn tilted_wall(z: f32, deg: f32) -> [Point3<f32>; 4] {
     [o - x - y, o + x - y, o + x + y, o - x + y]
 }
 
+/// A plate at 1 m covering x > 0 (the right half of the image).
+fn plate() -> [Point3<f32>; 4] {
+    [
+        Point3::new(0.0, -3.0, 1.0),
+        Point3::new(3.0, -3.0, 1.0),
+        Point3::new(3.0, 3.0, 1.0),
+        Point3::new(0.0, 3.0, 1.0),
+    ]
+}
+
 fn render(tris: &SceneTriangles) -> Frame {
     let mut f = Frame::new(W, H);
     rasterize(
@@ -172,12 +182,7 @@ fn the_emitters_shadow_is_the_band_the_geometry_predicts() {
     // A plate at 1 m covering x > 0, a wall at 2 m. The emitter at +x sees past the plate's
     // left edge: the wall is shadowed in a band fx * b * (1/1 - 1/2) pixels wide just left of
     // the plate (5.6 px at b = 7.5 cm), and nowhere else.
-    let plate = [
-        Point3::new(0.0, -3.0, 1.0),
-        Point3::new(3.0, -3.0, 1.0),
-        Point3::new(3.0, 3.0, 1.0),
-        Point3::new(0.0, 3.0, 1.0),
-    ];
+    let plate = plate();
     let tris = quads(&[wall(2.0, 50.0), plate]);
     let clean = render(&tris);
     for b in [0.075f32, 0.05] {
@@ -213,12 +218,7 @@ fn the_emitters_shadow_is_the_band_the_geometry_predicts() {
 
 #[test]
 fn edges_jitter_sideways_while_surfaces_stay() {
-    let plate = [
-        Point3::new(0.0, -3.0, 1.0),
-        Point3::new(3.0, -3.0, 1.0),
-        Point3::new(3.0, 3.0, 1.0),
-        Point3::new(0.0, 3.0, 1.0),
-    ];
+    let plate = plate();
     let clean = render(&quads(&[wall(2.0, 50.0), plate]));
     let mut f = clean.clone();
     lateral_edge_noise(&mut f, 0.8, &mut ChaCha8Rng::seed_from_u64(3));
@@ -252,12 +252,7 @@ fn edges_jitter_sideways_while_surfaces_stay() {
 
 #[test]
 fn flying_pixels_lie_between_the_two_sides_of_an_edge() {
-    let plate = [
-        Point3::new(0.0, -3.0, 1.0),
-        Point3::new(3.0, -3.0, 1.0),
-        Point3::new(3.0, 3.0, 1.0),
-        Point3::new(0.0, 3.0, 1.0),
-    ];
+    let plate = plate();
     let clean = render(&quads(&[wall(2.0, 50.0), plate]));
     let mut f = clean.clone();
     flying_pixels(&mut f, 0.7, &mut ChaCha8Rng::seed_from_u64(4));
@@ -339,12 +334,7 @@ fn randomised_sensors_stay_in_their_ranges_and_every_kind_is_drawn() {
 
 #[test]
 fn a_sensor_is_deterministic_in_its_seed_and_clean_changes_nothing() {
-    let plate = [
-        Point3::new(0.0, -3.0, 1.0),
-        Point3::new(3.0, -3.0, 1.0),
-        Point3::new(3.0, 3.0, 1.0),
-        Point3::new(0.0, 3.0, 1.0),
-    ];
+    let plate = plate();
     let tris = quads(&[wall(2.0, 50.0), plate]);
     let clean = render(&tris);
     for kind in [

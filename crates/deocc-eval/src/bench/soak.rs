@@ -161,98 +161,84 @@ fn record(tallies: &Tallies, kind: &str, ok: bool, what: impl FnOnce() -> String
     }
 }
 
+/// Opens `method` on `addr` with `headers`, sends `parts` (the last ends the body when `end`)
+/// and waits up to `secs` for the answer's code; `None` when there was no connection or no
+/// answer in time.
+async fn code_of(
+    addr: &str,
+    method: &str,
+    headers: &[(&str, &[u8])],
+    parts: &[&[u8]],
+    end: bool,
+    secs: u64,
+) -> Option<Code> {
+    let mut c = RawCall::open(addr, method, headers).await.ok()?;
+    for (k, part) in parts.iter().enumerate() {
+        c.send(part, end && k + 1 == parts.len()).ok()?;
+    }
+    let answer = tokio::time::timeout(Duration::from_secs(secs), c.answer()).await;
+    answer.ok()?.ok().map(|a| a.status.code())
+}
+
 /// One abuse of kind `k` (cycling through every kind); records its outcome.
 async fn abuse(k: usize, addr: &str, good: &CompleteRequest, cloud: &GraspRequest, t: &Tallies) {
-    let raw = |method: &'static str, headers: Vec<(&'static str, &'static [u8])>| async move {
-        RawCall::open(addr, method, &headers).await
-    };
-    match k % 9 {
+    use Code::{Cancelled, DeadlineExceeded, InvalidArgument, ResourceExhausted};
+    let good_msg = frame(&good.encode_to_vec());
+    let (kind, code, expected): (&str, Option<Code>, &[Code]) = match k % 9 {
+        // An upload that stops before its last byte: timed out by the server.
         0 => {
-            // An upload that stops before its last byte: timed out by the server.
-            let Ok(mut c) = raw("Complete", vec![]).await else {
-                return record(t, "stalled_upload", false, || "cannot connect".into());
-            };
-            let _ = c.send(&frame_header(60 << 20), false);
-            let _ = c.send(&vec![0u8; 1 << 20], false);
-            let a = tokio::time::timeout(Duration::from_secs(30), c.answer()).await;
-            let code = a.ok().and_then(|a| a.ok()).map(|a| a.status.code());
-            record(
-                t,
+            let head = frame_header(60 << 20);
+            let part = vec![0u8; 1 << 20];
+            let code = code_of(addr, "Complete", &[], &[&head, &part], false, 30).await;
+            (
                 "stalled_upload",
-                matches!(code, Some(Code::DeadlineExceeded | Code::ResourceExhausted)),
-                || format!("{code:?}"),
-            );
+                code,
+                &[DeadlineExceeded, ResourceExhausted],
+            )
         }
-        1 => {
-            // A slow reader: a Complete whose answer is not read for 3 s, then hung up on.
-            let Ok(mut c) = raw("Complete", vec![]).await else {
-                return record(t, "slow_reader", false, || "cannot connect".into());
+        // A slow reader: a Complete whose answer is not read for 3 s, then hung up on; and a
+        // call cancelled mid-run (RST_STREAM). Neither waits for an answer.
+        1 | 2 => {
+            let kind = if k % 9 == 1 {
+                "slow_reader"
+            } else {
+                "cancelled"
             };
-            let ok = c.send(&frame(&good.encode_to_vec()), true).is_ok();
-            tokio::time::sleep(Duration::from_secs(3)).await;
-            drop(c);
-            record(t, "slow_reader", ok, || "send failed".into());
-        }
-        2 => {
-            // Cancelled mid-run.
-            let Ok(mut c) = raw("Complete", vec![]).await else {
-                return record(t, "cancelled", false, || "cannot connect".into());
+            let sent = match RawCall::open(addr, "Complete", &[]).await {
+                Ok(mut c) => {
+                    let ok = c.send(&good_msg, true).is_ok();
+                    if k % 9 == 1 {
+                        tokio::time::sleep(Duration::from_secs(3)).await;
+                        drop(c);
+                    } else {
+                        tokio::time::sleep(Duration::from_millis(300)).await;
+                        c.cancel();
+                    }
+                    ok
+                }
+                Err(_) => false,
             };
-            let ok = c.send(&frame(&good.encode_to_vec()), true).is_ok();
-            tokio::time::sleep(Duration::from_millis(300)).await;
-            c.cancel();
-            record(t, "cancelled", ok, || "send failed".into());
+            return record(t, kind, sent, || "cannot connect or send".into());
         }
         3 => {
-            // A 1 ms deadline.
-            let Ok(mut c) = raw("Complete", vec![("grpc-timeout", b"1m")]).await else {
-                return record(t, "deadline_1ms", false, || "cannot connect".into());
-            };
-            let _ = c.send(&frame(&good.encode_to_vec()), true);
-            let a = tokio::time::timeout(Duration::from_secs(60), c.answer()).await;
-            let code = a.ok().and_then(|a| a.ok()).map(|a| a.status.code());
-            record(
-                t,
-                "deadline_1ms",
-                matches!(
-                    code,
-                    Some(Code::DeadlineExceeded | Code::Cancelled | Code::ResourceExhausted)
-                ),
-                || format!("{code:?}"),
-            );
+            let h: &[(&str, &[u8])] = &[("grpc-timeout", b"1m")];
+            let code = code_of(addr, "Complete", h, &[&good_msg], true, 60).await;
+            let ok: &[Code] = &[DeadlineExceeded, Cancelled, ResourceExhausted];
+            ("deadline_1ms", code, ok)
         }
+        // Announces 2 GiB.
         4 => {
-            // Announces 2 GiB.
-            let Ok(mut c) = raw("Complete", vec![]).await else {
-                return record(t, "oversized", false, || "cannot connect".into());
-            };
-            let _ = c.send(&frame_header(2 << 30), false);
-            let a = tokio::time::timeout(Duration::from_secs(30), c.answer()).await;
-            let code = a.ok().and_then(|a| a.ok()).map(|a| a.status.code());
-            record(
-                t,
-                "oversized",
-                code == Some(Code::ResourceExhausted),
-                || format!("{code:?}"),
-            );
+            let head = frame_header(2 << 30);
+            let code = code_of(addr, "Complete", &[], &[&head], false, 30).await;
+            ("oversized", code, &[ResourceExhausted])
         }
+        // Not protobuf.
         5 => {
-            // Not protobuf.
-            let Ok(mut c) = raw("Complete", vec![]).await else {
-                return record(t, "malformed", false, || "cannot connect".into());
-            };
-            let _ = c.send(&frame(&[0xff; 200]), true);
-            let a = tokio::time::timeout(Duration::from_secs(30), c.answer()).await;
-            let code = a.ok().and_then(|a| a.ok()).map(|a| a.status.code());
-            record(
-                t,
-                "malformed",
-                matches!(code, Some(Code::InvalidArgument | Code::ResourceExhausted)),
-                || format!("{code:?}"),
-            );
+            let code = code_of(addr, "Complete", &[], &[&frame(&[0xff; 200])], true, 30).await;
+            ("malformed", code, &[InvalidArgument, ResourceExhausted])
         }
+        // Pathological grasp options (the hang and the false best grasp of before).
         6 | 7 => {
-            // Pathological grasp options (the hang and the false best grasp of before).
             let options = if k % 9 == 6 {
                 r#"{"approaches": 1000000000000}"#
             } else {
@@ -262,40 +248,43 @@ async fn abuse(k: usize, addr: &str, good: &CompleteRequest, cloud: &GraspReques
                 options_json: options.into(),
                 ..cloud.clone()
             };
-            let Ok(mut c) = raw("Grasp", vec![]).await else {
-                return record(t, "bad_grasp_options", false, || "cannot connect".into());
-            };
-            let _ = c.send(&frame(&msg.encode_to_vec()), true);
-            let a = tokio::time::timeout(Duration::from_secs(60), c.answer()).await;
-            let code = a.ok().and_then(|a| a.ok()).map(|a| a.status.code());
-            record(
-                t,
+            let code = code_of(
+                addr,
+                "Grasp",
+                &[],
+                &[&frame(&msg.encode_to_vec())],
+                true,
+                60,
+            )
+            .await;
+            (
                 "bad_grasp_options",
-                matches!(code, Some(Code::InvalidArgument | Code::ResourceExhausted)),
-                || format!("{code:?}"),
-            );
+                code,
+                &[InvalidArgument, ResourceExhausted],
+            )
         }
+        // A transposed K.
         _ => {
-            // A transposed K.
             let mut msg = good.clone();
             if let Some(info) = msg.frames[0].camera_info.as_mut() {
                 let k = info.k.clone();
                 info.k = vec![k[0], 0.0, 0.0, 0.0, k[4], 0.0, k[2], k[5], 1.0];
             }
-            let Ok(mut c) = raw("Complete", vec![]).await else {
-                return record(t, "bad_camera", false, || "cannot connect".into());
-            };
-            let _ = c.send(&frame(&msg.encode_to_vec()), true);
-            let a = tokio::time::timeout(Duration::from_secs(30), c.answer()).await;
-            let code = a.ok().and_then(|a| a.ok()).map(|a| a.status.code());
-            record(
-                t,
-                "bad_camera",
-                matches!(code, Some(Code::InvalidArgument | Code::ResourceExhausted)),
-                || format!("{code:?}"),
-            );
+            let code = code_of(
+                addr,
+                "Complete",
+                &[],
+                &[&frame(&msg.encode_to_vec())],
+                true,
+                30,
+            )
+            .await;
+            ("bad_camera", code, &[InvalidArgument, ResourceExhausted])
         }
-    }
+    };
+    record(t, kind, code.is_some_and(|c| expected.contains(&c)), || {
+        format!("{code:?}")
+    });
 }
 
 /// Runs the soak against the `deocc` binary at `exe`.
