@@ -212,7 +212,6 @@ pub fn reconstruction_benchmark(
     sensor: deocc_synth::sensor::SensorKind,
     tick: &mut dyn FnMut(),
 ) -> Result<ReconstructionReport, crate::EvalError> {
-    use deocc_pipeline::instances::ensure_instances;
     use deocc_pipeline::segment::ConvexitySegmenter;
     let mut preset = deocc_synth::dataset::bench_v1();
     crate::with_sensor(&mut preset, sensor);
@@ -225,7 +224,17 @@ pub fn reconstruction_benchmark(
     for &seed in &preset.seeds[..n] {
         let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         let scene = rendered.scene_input();
-        let out = deocc_pipeline::run(&scene, chain, opts, &Vec::new())?;
+        // The product's front half (the depth front end on every frame) before each run.
+        let mut scene = scene;
+        let unlabelled_input = crate::scenes::unlabelled(scene.clone());
+        let prepared = deocc_pipeline::front::prepare(&mut scene, opts, None, &segmenter, false)?;
+        let out = deocc_pipeline::run_prepared(
+            &scene,
+            chain,
+            opts,
+            prepared,
+            &deocc_pipeline::Unobserved,
+        )?;
         let cams: Vec<_> = scene.frames.iter().map(|f| f.camera).collect();
         let gt = in_frustum(
             &rendered.ground_truth.cloud,
@@ -235,9 +244,16 @@ pub fn reconstruction_benchmark(
         vis_figs.push(figures(&align_to_ground_truth(&out.observed, &gt)?, &gt)?);
         deo_figs.push(figures(&align_to_ground_truth(&out.completed, &gt)?, &gt)?);
         // The same scene with the default segmenter instead of the ground-truth masks.
-        let mut unlabelled = crate::scenes::unlabelled(scene);
-        ensure_instances(&mut unlabelled, &segmenter)?;
-        let seg_out = deocc_pipeline::run(&unlabelled, chain, opts, &Vec::new())?;
+        let mut unlabelled = unlabelled_input;
+        let prepared =
+            deocc_pipeline::front::prepare(&mut unlabelled, opts, None, &segmenter, true)?;
+        let seg_out = deocc_pipeline::run_prepared(
+            &unlabelled,
+            chain,
+            opts,
+            prepared,
+            &deocc_pipeline::Unobserved,
+        )?;
         seg_figs.push(figures(
             &align_to_ground_truth(&seg_out.completed, &gt)?,
             &gt,
