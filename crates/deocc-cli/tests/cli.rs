@@ -445,3 +445,58 @@ fn run_fills_depth_holes_and_refuses_a_missing_depth_model() {
     );
     assert!(!out2.exists());
 }
+
+/// `deocc eval reconstruction` and `deocc eval perception` under a sensor model, at smoke size:
+/// they run, write their reports, and name the sensor; a bad sensor name is refused.
+#[test]
+fn eval_commands_run_under_a_sensor_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec.json");
+    let o = deocc()
+        .args([
+            "eval",
+            "reconstruction",
+            "--scenes",
+            "1",
+            "--completer",
+            "rules",
+        ])
+        .args(["--sensor", "structured-light", "--json"])
+        .arg(&rec)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&rec).unwrap()).unwrap();
+    assert!(r["benchmark"]
+        .as_str()
+        .unwrap()
+        .contains("structured-light"));
+    assert!(r["completeness_gain_whole_scene"]
+        .as_f64()
+        .unwrap()
+        .is_finite());
+    let perc = dir.path().join("perc.json");
+    let o = deocc()
+        .args([
+            "eval",
+            "perception",
+            "--scenes",
+            "1",
+            "--failure-scenes",
+            "0",
+        ])
+        .args(["--sensor", "time-of-flight", "--json"])
+        .arg(&perc)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&perc).unwrap()).unwrap();
+    assert!(r["benchmark"].as_str().unwrap().contains("time-of-flight"));
+    assert!(r["segmenter_miou"].as_f64().unwrap() > 0.0);
+    let o = deocc()
+        .args(["eval", "perception", "--scenes", "1", "--sensor", "lidar"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("structured-light"));
+}
