@@ -318,11 +318,18 @@ pub fn perception_benchmark(
     failure_scenes: usize,
     sensor: deocc_synth::sensor::SensorKind,
     clean: &deocc_pipeline::depth_clean::DepthCleanOptions,
+    tuning: bool,
     tick: &mut dyn FnMut(),
 ) -> Result<PerceptionReport, crate::EvalError> {
     use deocc_pipeline::matching::Threshold;
     let mut preset = deocc_synth::dataset::bench_v1();
     crate::with_sensor(&mut preset, sensor);
+    if tuning {
+        // bench-v1-like scenes of other seeds (as `eval objects --tuning`): where settings are
+        // chosen, never the test scenes.
+        preset.name = format!("{} tuning scenes", preset.name);
+        preset.seeds = (9_050_000..9_050_000 + preset.seeds.len() as u64).collect();
+    }
     preset.config.gt_points_per_m2 = 10.0; // ground truth is not used here
     let n = scenes.min(preset.seeds.len());
     let thresholds = [

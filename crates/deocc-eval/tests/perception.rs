@@ -117,7 +117,8 @@ fn perception_holds_under_a_structured_light_sensor() {
         ..on.clone()
     };
     let run = |sensor, clean: &deocc_pipeline::depth_clean::DepthCleanOptions| {
-        deocc_eval::perception::perception_benchmark(2, 0, sensor, clean, &mut || {}).unwrap()
+        deocc_eval::perception::perception_benchmark(2, 0, sensor, clean, false, &mut || {})
+            .unwrap()
     };
     let clean = run(SensorKind::Clean, &on);
     let sensed = run(SensorKind::StructuredLight, &on);
