@@ -168,6 +168,19 @@ fn outlier_pass(d: &mut [f32], w: usize, h: usize, noise: &DepthNoise, k: f32) -
     removed
 }
 
+/// The 4-neighbours of pixel `i` in a `w x h` grid, row-major.
+pub(crate) fn neighbours4(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    let (u, v) = (i % w, i / w);
+    [
+        (u > 0).then(|| i - 1),
+        (u + 1 < w).then(|| i + 1),
+        (v > 0).then(|| i - w),
+        (v + 1 < h).then(|| i + w),
+    ]
+    .into_iter()
+    .flatten()
+}
+
 /// Step 2: connected pieces smaller than `min_region_px`.
 fn remove_specks(
     d: &mut [f32],
@@ -193,18 +206,9 @@ fn remove_specks(
         members.clear();
         while let Some(i) = stack.pop() {
             members.push(i);
-            let (u, v) = (i % w, i / w);
             let z = d[i];
             let tol = opts.connect_sigmas * noise.sigma(z) + 0.02 * z;
-            for j in [
-                (u > 0).then(|| i - 1),
-                (u + 1 < w).then(|| i + 1),
-                (v > 0).then(|| i - w),
-                (v + 1 < h).then(|| i + w),
-            ]
-            .into_iter()
-            .flatten()
-            {
+            for j in neighbours4(i, w, h) {
                 if d[j] > 0.0 && label[j] == u32::MAX && (d[j] - z).abs() <= tol {
                     label[j] = start as u32;
                     stack.push(j);

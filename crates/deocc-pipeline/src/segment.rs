@@ -505,16 +505,9 @@ impl ConvexitySegmenter {
                         continue;
                     }
                     let tol = self.depth_abs_m + self.depth_rel * d[i];
-                    let best = [
-                        (u > 0).then(|| i - 1),
-                        (u + 1 < w).then(|| i + 1),
-                        (v > 0).then(|| i - w),
-                        (v + 1 < h).then(|| i + w),
-                    ]
-                    .into_iter()
-                    .flatten()
-                    .filter(|&j| ids[j] != 0 && (d[j] - d[i]).abs() <= tol)
-                    .min_by(|&a, &b| (d[a] - d[i]).abs().total_cmp(&(d[b] - d[i]).abs()));
+                    let best = crate::depth_clean::neighbours4(i, w, h)
+                        .filter(|&j| ids[j] != 0 && (d[j] - d[i]).abs() <= tol)
+                        .min_by(|&a, &b| (d[a] - d[i]).abs().total_cmp(&(d[b] - d[i]).abs()));
                     if let Some(j) = best {
                         map.ids[i] = ids[j];
                         changed = true;
