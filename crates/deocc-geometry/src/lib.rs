@@ -15,6 +15,7 @@ pub mod align;
 pub mod camera;
 pub mod cloud;
 pub mod depth;
+pub mod distortion;
 pub mod error;
 pub mod knn;
 pub mod mask2d;

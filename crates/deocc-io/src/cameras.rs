@@ -8,10 +8,32 @@
 //! ```
 //! Poses are row-major 4x4 rigid transforms; the rotation part must be orthonormal (to 1e-3).
 //! `world_from_camera` may be omitted when poses are unknown (to be registered later).
+//!
+//! What a real camera delivers beyond a pinhole, each optional per frame:
+//! ```json
+//! { "distortion": { "model": "rational_polynomial",
+//!                   "coefficients": [0.447, -2.5, 0.00094, -0.00053, 1.432, 0.329, -2.332, 1.363] },
+//!   "depth_scale": 0.000125,
+//!   "depth_camera": { "intrinsics": { "fx": 504.0, "fy": 504.1, "cx": 320.0, "cy": 288.0,
+//!                                     "width": 640, "height": 576 },
+//!                     "distortion": { "model": "plumb_bob", "coefficients": [0.1, -0.05, 0, 0, 0] },
+//!                     "color_from_depth": [[1,0,0,-0.032],[0,1,0,0.002],[0,0,1,0.004],[0,0,0,1]] } }
+//! ```
+//! - `distortion`: the colour camera's lens (ROS `CameraInfo` names: `plumb_bob`,
+//!   `rational_polynomial`, `equidistant`); removed once at read time, so `intrinsics` is then the
+//!   pinhole `K` every stage uses. Without `depth_camera` the depth image is registered to the
+//!   colour image and shares its lens.
+//! - `depth_scale`: metres per unit of a 16-bit depth PNG (default 0.001, millimetres; a
+//!   RealSense SR300 counts 1/8 mm, TUM RGB-D 1/5000 m). Float32 depth (`depth/NAME.npy`) is
+//!   metres and ignores it.
+//! - `depth_camera`: depth from its own camera (own size, intrinsics and lens), registered to the
+//!   colour camera at read time with a z-buffer; `color_from_depth` moves depth-camera points
+//!   into the colour camera's frame.
 
 use std::path::Path;
 
 use deocc_geometry::camera::{Camera, Intrinsics};
+use deocc_geometry::distortion::Distortion;
 use nalgebra::{Isometry3, Matrix3, Matrix4, Translation3};
 use serde::{Deserialize, Serialize};
 
@@ -24,6 +46,85 @@ pub struct FrameJson {
     pub intrinsics: Intrinsics,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub world_from_camera: Option<[[f64; 4]; 4]>,
+    #[serde(default, skip_serializing_if = "Distortion::is_none")]
+    pub distortion: Distortion,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_scale: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_camera: Option<DepthCameraJson>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DepthCameraJson {
+    pub intrinsics: Intrinsics,
+    #[serde(default, skip_serializing_if = "Distortion::is_none")]
+    pub distortion: Distortion,
+    pub color_from_depth: [[f64; 4]; 4],
+}
+
+/// Metres per unit of a 16-bit depth image when nothing else is said: millimetres.
+pub const DEFAULT_DEPTH_SCALE: f64 = 0.001;
+/// The range a `depth_scale` may take: a micrometre to a metre per unit.
+pub const DEPTH_SCALE_RANGE: (f64, f64) = (1e-6, 1.0);
+
+/// A separate depth camera: its own intrinsics and lens, and where it sits.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthCamera {
+    pub intrinsics: Intrinsics,
+    pub distortion: Distortion,
+    pub color_from_depth: Isometry3<f32>,
+}
+
+/// How a frame's images relate to the pinhole camera deocc works in.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lens {
+    /// The colour camera's distortion (and the depth's, without `depth_camera`).
+    pub distortion: Distortion,
+    /// Metres per unit of 16-bit depth.
+    pub depth_scale: f64,
+    pub depth_camera: Option<DepthCamera>,
+}
+
+impl Default for Lens {
+    fn default() -> Self {
+        Lens {
+            distortion: Distortion::None,
+            depth_scale: DEFAULT_DEPTH_SCALE,
+            depth_camera: None,
+        }
+    }
+}
+
+impl Lens {
+    /// Whether the images are already what a pinhole camera registered to colour would give.
+    pub fn is_pinhole(&self) -> bool {
+        self.distortion.is_none() && self.depth_camera.is_none()
+    }
+
+    /// The size the depth image must have.
+    pub fn depth_size(&self, color: &Intrinsics) -> (u32, u32) {
+        let k = self.depth_camera.as_ref().map_or(color, |d| &d.intrinsics);
+        (k.width(), k.height())
+    }
+
+    /// Checks `depth_scale` against [`DEPTH_SCALE_RANGE`].
+    pub fn check(&self) -> std::result::Result<(), String> {
+        let (lo, hi) = DEPTH_SCALE_RANGE;
+        if !(self.depth_scale >= lo && self.depth_scale <= hi) {
+            return Err(format!(
+                "depth_scale {} is not between {lo} and {hi} metres per unit (0.001 for \
+                 millimetres)",
+                self.depth_scale
+            ));
+        }
+        if let Some(d) = &self.depth_camera {
+            d.intrinsics
+                .check_plausible()
+                .map_err(|e| format!("depth_camera.intrinsics: {e}"))?;
+        }
+        Ok(())
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -37,6 +138,8 @@ pub struct FrameCamera {
     pub name: String,
     pub intrinsics: Intrinsics,
     pub world_from_camera: Option<Isometry3<f32>>,
+    /// Distortion, depth units and a separate depth camera; removed at read time.
+    pub lens: Lens,
 }
 
 impl FrameCamera {
@@ -108,10 +211,27 @@ pub fn read_cameras_json(path: &Path) -> Result<Vec<FrameCamera>> {
                 ),
                 None => None,
             };
+            let at = |e: String| IoError::invalid(path, format!("frame '{}': {e}", f.name));
+            let depth_camera = match &f.depth_camera {
+                Some(d) => Some(DepthCamera {
+                    intrinsics: d.intrinsics,
+                    distortion: d.distortion.clone(),
+                    color_from_depth: pose_from_rows(&d.color_from_depth)
+                        .map_err(|e| at(format!("depth_camera.color_from_depth: {e}")))?,
+                }),
+                None => None,
+            };
+            let lens = Lens {
+                distortion: f.distortion,
+                depth_scale: f.depth_scale.unwrap_or(DEFAULT_DEPTH_SCALE),
+                depth_camera,
+            };
+            lens.check().map_err(at)?;
             Ok(FrameCamera {
                 name: f.name,
                 intrinsics: f.intrinsics,
                 world_from_camera,
+                lens,
             })
         })
         .collect()
@@ -125,6 +245,14 @@ pub fn write_cameras_json(path: &Path, frames: &[FrameCamera]) -> Result<()> {
                 name: f.name.clone(),
                 intrinsics: f.intrinsics,
                 world_from_camera: f.world_from_camera.as_ref().map(pose_to_rows),
+                distortion: f.lens.distortion.clone(),
+                depth_scale: (f.lens.depth_scale != DEFAULT_DEPTH_SCALE)
+                    .then_some(f.lens.depth_scale),
+                depth_camera: f.lens.depth_camera.as_ref().map(|d| DepthCameraJson {
+                    intrinsics: d.intrinsics,
+                    distortion: d.distortion.clone(),
+                    color_from_depth: pose_to_rows(&d.color_from_depth),
+                }),
             })
             .collect(),
     };

@@ -103,6 +103,46 @@ pub fn read_depth_png_expecting(path: &Path, expected: Option<(u32, u32)>) -> Re
         .map_err(|e| IoError::new(path, e))
 }
 
+/// Reads a depth image in either form deocc takes: a 16-bit PNG of `scale` metres per unit
+/// (0.001 for millimetres), or a NumPy `.npy` array (`<f4` metres, NaN/inf/0 = none; or `<u2`
+/// units of `scale`), of `expected` size when given.
+pub fn read_depth_expecting(
+    path: &Path,
+    expected: Option<(u32, u32)>,
+    scale: f64,
+) -> Result<DepthMap> {
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    let (w, h, metres) = if is_npy {
+        let bytes = std::fs::read(path).map_err(|e| IoError::new(path, e))?;
+        let (h, w, values) =
+            crate::npy::read_depth_npy(&bytes, scale).map_err(|e| IoError::invalid(path, e))?;
+        if let Some((ew, eh)) = expected {
+            if (w, h) != (ew, eh) {
+                return Err(IoError::invalid(
+                    path,
+                    format!("array is {w}x{h} (width x height) but cameras.json says {ew}x{eh}"),
+                ));
+            }
+        }
+        (w, h, values)
+    } else {
+        let what = if scale == 0.001 {
+            "depth in millimetres".to_string()
+        } else {
+            format!("depth in units of {scale} m")
+        };
+        let (w, h, raw) = read_u16_png(path, &what, expected)?;
+        (
+            w,
+            h,
+            raw.iter().map(|&v| (v as f64 * scale) as f32).collect(),
+        )
+    };
+    DepthMap::new(w, h, metres).map_err(|e| IoError::new(path, e))
+}
+
 /// Writes depth in metres as a 16-bit PNG in millimetres. Depth beyond 65.535 m cannot be stored
 /// and is written as 0 (no measurement).
 pub fn write_depth_png(path: &Path, depth: &DepthMap) -> Result<()> {

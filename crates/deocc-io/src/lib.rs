@@ -7,7 +7,10 @@
 //! - [`ply`]: point clouds and meshes (ASCII, binary little/big-endian) with colour, normals,
 //!   instance id and generated flag;
 //! - [`images`]: 16-bit depth PNG in millimetres, u16 instance maps, masks, RGB;
-//! - [`cameras`]: intrinsics and `world_from_camera` poses as JSON;
+//! - [`cameras`]: intrinsics, lens distortion, depth units, a separate depth camera and
+//!   `world_from_camera` poses as JSON;
+//! - [`lens`]: turns what a real camera gives into the pinhole frame the stages use;
+//! - [`npy`]: float32 / uint16 depth as NumPy arrays;
 //! - [`mesh`]: OBJ / STL / PLY meshes;
 //! - [`scene`]: the scene folder (frames, cameras, metadata), deocc's input;
 //! - [`pairs`]: GL-DoT training-pair shards (safetensors).
@@ -16,7 +19,9 @@ pub mod atomic;
 pub mod cameras;
 pub mod error;
 pub mod images;
+pub mod lens;
 pub mod mesh;
+pub mod npy;
 pub mod pairs;
 pub mod ply;
 pub mod scene;

@@ -4,8 +4,9 @@
 //! ```text
 //! SCENE/
 //!   cameras.json          intrinsics and (optional) world_from_camera poses per frame
-//!   rgb/NAME.png          8-bit RGB
-//!   depth/NAME.png        16-bit depth in millimetres, 0 = no measurement
+//!   rgb/NAME.png          8-bit RGB (or rgb/NAME.jpg)
+//!   depth/NAME.png        16-bit depth in millimetres (or units of `depth_scale`), 0 = no
+//!                         measurement; or depth/NAME.npy, float32 metres
 //!   instances/NAME.png    optional: u16 instance ids consistent across views, 0 = background
 //!   scene.json            optional: which instances are room structure, their categories
 //!   ground_truth.ply      optional: dense ground-truth surface samples with a `seen` flag
@@ -13,7 +14,8 @@
 //!
 //! Reading checks everything before returning: every file exists and decodes, sizes agree with
 //! `cameras.json`, frame names are plain file names and unique, poses are given for every frame
-//! or for none. It has no side effects: pose-free input is registered by the pipeline's
+//! or for none. Lens distortion and a separate depth camera (see [`crate::cameras`]) are removed
+//! here, once, so a frame is always a pinhole RGB-D frame registered to colour. It has no side effects: pose-free input is registered by the pipeline's
 //! registration stage, explicitly.
 
 use std::collections::BTreeSet;
@@ -27,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use crate::cameras::{read_cameras_json, read_json, write_cameras_json, FrameCamera};
 use crate::error::{IoError, Result};
 use crate::images::{
-    read_depth_png_expecting, read_instance_png_expecting, read_rgb_png_expecting, write_depth_png,
+    read_depth_expecting, read_instance_png_expecting, read_rgb_png_expecting, write_depth_png,
     write_instance_png, write_rgb_png, InstanceMap,
 };
 
@@ -169,6 +171,15 @@ pub fn read_scene(dir: &Path) -> Result<SceneInput> {
     })
 }
 
+/// The first of `candidates` that exists, else the first (so the error names the usual file).
+fn first_existing(candidates: Vec<PathBuf>) -> PathBuf {
+    candidates
+        .iter()
+        .find(|p| p.exists())
+        .cloned()
+        .unwrap_or_else(|| candidates[0].clone())
+}
+
 fn read_frame(dir: &Path, fc: &FrameCamera) -> Result<Frame> {
     let camera = Camera {
         intrinsics: fc.intrinsics,
@@ -177,10 +188,21 @@ fn read_frame(dir: &Path, fc: &FrameCamera) -> Result<Frame> {
             .unwrap_or_else(nalgebra::Isometry3::identity),
     };
     let [rgb_path, depth_path, inst_path] = frame_paths(dir, &fc.name);
+    // Colour as PNG or as the camera's own JPEG; depth as 16-bit PNG or a NumPy array.
+    let rgb_path = first_existing(vec![
+        rgb_path.clone(),
+        rgb_path.with_extension("jpg"),
+        rgb_path.with_extension("jpeg"),
+    ]);
+    let depth_path = first_existing(vec![depth_path.clone(), depth_path.with_extension("npy")]);
     let (w, h) = (fc.intrinsics.width(), fc.intrinsics.height());
-    // Sizes are checked against cameras.json from the PNG headers, before decoding.
+    // Sizes are checked against cameras.json from the image headers, before decoding.
     let rgb = read_rgb_png_expecting(&rgb_path, Some((w, h)))?;
-    let depth = read_depth_png_expecting(&depth_path, Some((w, h)))?;
+    let depth = read_depth_expecting(
+        &depth_path,
+        Some(fc.lens.depth_size(&fc.intrinsics)),
+        fc.lens.depth_scale,
+    )?;
     if depth.valid_count() == 0 {
         return Err(IoError::invalid(
             &depth_path,
@@ -192,6 +214,15 @@ fn read_frame(dir: &Path, fc: &FrameCamera) -> Result<Frame> {
     } else {
         None
     };
+    let (rgb, depth, instances) =
+        crate::lens::to_pinhole(rgb, depth, instances, &fc.intrinsics, &fc.lens);
+    if depth.valid_count() == 0 {
+        return Err(IoError::invalid(
+            &depth_path,
+            "no depth falls inside the colour image after registration: check \
+             depth_camera.color_from_depth",
+        ));
+    }
     Ok(Frame {
         name: fc.name.clone(),
         camera,
@@ -227,6 +258,7 @@ pub fn write_cameras(dir: &Path, frames: &[Frame], posed: bool) -> Result<()> {
             name: f.name.clone(),
             intrinsics: f.camera.intrinsics,
             world_from_camera: posed.then_some(f.camera.world_from_camera),
+            lens: Default::default(),
         })
         .collect();
     write_cameras_json(&dir.join("cameras.json"), &cams)

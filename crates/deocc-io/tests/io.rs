@@ -241,11 +241,13 @@ fn cameras_json_round_trips_and_validates() {
             name: "a".into(),
             intrinsics: Intrinsics::new(500.0, 510.0, 320.0, 240.0, 640, 480).unwrap(),
             world_from_camera: Some(pose),
+            lens: Default::default(),
         },
         FrameCamera {
             name: "b".into(),
             intrinsics: Intrinsics::new(500.0, 510.0, 320.0, 240.0, 640, 480).unwrap(),
             world_from_camera: None,
+            lens: Default::default(),
         },
     ];
     write_cameras_json(&p, &frames).unwrap();
@@ -548,6 +550,7 @@ fn half_turn_camera_poses_are_read_as_written() {
                     std::f32::consts::PI,
                 ),
             )),
+            lens: Default::default(),
         })
         .collect();
     write_cameras_json(&path, &frames).unwrap();
@@ -618,4 +621,122 @@ fn options_documents_must_be_objects() {
     }
     let e = deocc_io::cameras::options_from_json::<Settings>(r#"{"thrid": 1}"#).unwrap_err();
     assert!(e.contains("thrid"), "{e}");
+}
+
+/// A scene folder with one frame: depth given as `write_depth` writes it, `cameras.json` given
+/// as `frame` (a JSON object without the name).
+fn one_frame_scene(dir: &Path, frame: serde_json::Value, write_depth: impl FnOnce(&Path)) {
+    let mut frame = frame;
+    frame["name"] = "f".into();
+    std::fs::create_dir_all(dir.join("rgb")).unwrap();
+    std::fs::create_dir_all(dir.join("depth")).unwrap();
+    let (w, h) = (
+        frame["intrinsics"]["width"].as_u64().unwrap() as u32,
+        frame["intrinsics"]["height"].as_u64().unwrap() as u32,
+    );
+    deocc_io::images::write_rgb_png(&dir.join("rgb/f.png"), &image::RgbImage::new(w, h)).unwrap();
+    write_depth(&dir.join("depth"));
+    std::fs::write(
+        dir.join("cameras.json"),
+        serde_json::json!({ "frames": [frame] }).to_string(),
+    )
+    .unwrap();
+}
+
+#[test]
+fn depth_units_are_read_as_stated() {
+    let tmp = tempfile::tempdir().unwrap();
+    let intr =
+        serde_json::json!({"fx": 50.0, "fy": 50.0, "cx": 2.0, "cy": 1.5, "width": 4, "height": 3});
+    // 1.234 m everywhere, as an SR300 counts it (1/8 mm), as TUM does (1/5000 m) and as float32.
+    let truth = 1.234f32;
+    let write_u16 = |p: &Path, units: u16| {
+        let img =
+            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(4, 3, vec![units; 12]).unwrap();
+        img.save(p.join("f.png")).unwrap();
+    };
+    for (scale, units, tol) in [
+        (0.000125, 9872u16, 1e-6),
+        (0.0002, 6170, 1e-6),
+        (0.001, 1234, 1e-6),
+    ] {
+        let dir = tmp.path().join(format!("s{units}"));
+        one_frame_scene(
+            &dir,
+            serde_json::json!({"intrinsics": intr, "depth_scale": scale}),
+            |p| write_u16(p, units),
+        );
+        let scene = deocc_io::scene::read_scene(&dir).unwrap();
+        let got = scene.frames[0].depth.get(1, 1);
+        assert!((got - truth).abs() < tol, "scale {scale}: {got}");
+    }
+    let dir = tmp.path().join("npy");
+    one_frame_scene(&dir, serde_json::json!({"intrinsics": intr}), |p| {
+        std::fs::write(
+            p.join("f.npy"),
+            deocc_io::npy::depth_npy_bytes(4, 3, &[truth; 12]),
+        )
+        .unwrap()
+    });
+    let scene = deocc_io::scene::read_scene(&dir).unwrap();
+    assert_eq!(scene.frames[0].depth.get(3, 2), truth);
+    // A scale outside its range is refused, naming the field.
+    let dir = tmp.path().join("bad");
+    one_frame_scene(
+        &dir,
+        serde_json::json!({"intrinsics": intr, "depth_scale": 1000.0}),
+        |p| write_u16(p, 1),
+    );
+    let e = deocc_io::scene::read_scene(&dir).unwrap_err().to_string();
+    assert!(
+        e.contains("depth_scale") && e.contains("cameras.json"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_separate_depth_camera_is_registered_to_colour() {
+    // A wall 1.5 m away seen by a 6x4 depth camera 2 cm to the colour camera's left: every
+    // registered colour pixel is the wall, at the colour camera's own depth of it.
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s");
+    let frame = serde_json::json!({
+        "intrinsics": {"fx": 20.0, "fy": 20.0, "cx": 4.0, "cy": 3.0, "width": 8, "height": 6},
+        "depth_camera": {
+            "intrinsics": {"fx": 12.0, "fy": 12.0, "cx": 3.0, "cy": 2.0, "width": 6, "height": 4},
+            "color_from_depth": [[1,0,0,-0.02],[0,1,0,0],[0,0,1,0],[0,0,0,1]]
+        }
+    });
+    one_frame_scene(&dir, frame, |p| {
+        let img =
+            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(6, 4, vec![1500u16; 24]).unwrap();
+        img.save(p.join("f.png")).unwrap();
+    });
+    let scene = deocc_io::scene::read_scene(&dir).unwrap();
+    let d = &scene.frames[0].depth;
+    assert_eq!((d.width(), d.height()), (8, 6));
+    assert!(
+        d.valid_count() >= 40,
+        "{} of 48 colour pixels have depth",
+        d.valid_count()
+    );
+    for &z in d.data() {
+        assert!(z == 0.0 || (z - 1.5).abs() < 1e-5, "{z}");
+    }
+    // The depth image must have the depth camera's size.
+    let dir = tmp.path().join("wrong-size");
+    let frame = serde_json::json!({
+        "intrinsics": {"fx": 20.0, "fy": 20.0, "cx": 4.0, "cy": 3.0, "width": 8, "height": 6},
+        "depth_camera": {
+            "intrinsics": {"fx": 12.0, "fy": 12.0, "cx": 3.0, "cy": 2.0, "width": 6, "height": 4},
+            "color_from_depth": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]
+        }
+    });
+    one_frame_scene(&dir, frame, |p| {
+        let img =
+            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(8, 6, vec![1500u16; 48]).unwrap();
+        img.save(p.join("f.png")).unwrap();
+    });
+    let e = deocc_io::scene::read_scene(&dir).unwrap_err().to_string();
+    assert!(e.contains("6x4"), "{e}");
 }

@@ -136,6 +136,18 @@ fn frame(d: &Bound<'_, PyAny>, k: usize) -> PyResult<proto::Frame> {
         )));
     };
     let k_values = matrix(&need("K")?, &format!("{at}['K']"), 3)?;
+    let distortion_model = match get("distortion_model")? {
+        Some(m) => m
+            .extract::<String>()
+            .map_err(|_| value_error(format!("{at}['distortion_model']: expected a str")))?,
+        None => String::new(),
+    };
+    let d_values = match get("D")? {
+        Some(v) => v
+            .extract::<Vec<f64>>()
+            .map_err(|_| value_error(format!("{at}['D']: expected a sequence of numbers")))?,
+        None => Vec::new(),
+    };
     let pose = match get("pose")? {
         Some(p) => matrix(&p, &format!("{at}['pose']"), 4)?,
         None => Vec::new(),
@@ -162,6 +174,8 @@ fn frame(d: &Bound<'_, PyAny>, k: usize) -> PyResult<proto::Frame> {
             height: rgb.height,
             width: rgb.width,
             k: k_values,
+            distortion_model,
+            d: d_values,
         }),
         rgb: Some(rgb),
         depth: Some(depth),

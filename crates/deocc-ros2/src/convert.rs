@@ -92,6 +92,8 @@ pub fn request(views: &[View], options_json: &str) -> Result<proto::CompleteRequ
                     height: v.info.height,
                     width: v.info.width,
                     k: v.info.k.to_vec(),
+                    distortion_model: v.info.distortion_model.clone(),
+                    d: v.info.d.clone(),
                 }),
                 world_from_camera,
                 instances: None,
@@ -336,6 +338,7 @@ mod tests {
                 height: 1,
                 width: 2,
                 k: vec![100.0, 0.0, 1.0, 0.0, 100.0, 0.5, 0.0, 0.0, 1.0],
+                ..Default::default()
             }),
             world_from_camera: rows.clone(),
             instances: None,

@@ -56,8 +56,8 @@ pub struct RegionOfInterest {
     pub do_rectify: bool,
 }
 
-/// sensor_msgs/CameraInfo. deocc reads `k` (and `width`, `height`); it expects rectified
-/// images (distortion already removed, as `image_proc` publishes them).
+/// sensor_msgs/CameraInfo. deocc reads `k`, `width`, `height`, `distortion_model` and `d`: raw
+/// driver images are undistorted on arrival (rectified ones come with zero `d`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct CameraInfo {
     pub header: Header,

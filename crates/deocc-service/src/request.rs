@@ -2,6 +2,7 @@
 //! names the field (`frames[2].depth.data`), and nothing is allocated beyond the request's own
 //! size before the sizes agree.
 
+use deocc_geometry::distortion::Distortion;
 use std::path::PathBuf;
 
 use deocc_geometry::camera::{Camera, Intrinsics};
@@ -282,6 +283,14 @@ fn frame(
     } else {
         Isometry3::identity()
     };
+    // Lens distortion, removed once here as a scene folder's is at read time.
+    let distortion = Distortion::from_ros(&info.distortion_model, &info.d)
+        .map_err(|e| bad(format!("{at}.camera_info.d"), e))?;
+    let lens = deocc_io::cameras::Lens {
+        distortion,
+        ..Default::default()
+    };
+    let (rgb, depth, instances) = deocc_io::lens::to_pinhole(rgb, depth, instances, &intr, &lens);
     let name = if req.name.is_empty() {
         format!("frame{k}")
     } else {
@@ -409,6 +418,7 @@ pub fn request_from_scene(scene: &SceneInput, options_json: &str) -> CompleteReq
                         0.0,
                         1.0,
                     ],
+                    ..Default::default()
                 }),
                 world_from_camera: if scene.posed {
                     rows.iter().flatten().copied().collect()

@@ -135,6 +135,30 @@ async fn camera_matrices_that_are_not_pinhole_and_float_millimetres_are_refused(
             e.message()
         );
     }
+    // Distortion as ROS states it: unknown models and wrong counts refused by field; a stated
+    // lens is taken (and removed on arrival).
+    for (model, d, says) in [
+        ("kannala_brandt8", vec![0.1; 8], "unknown distortion model"),
+        ("plumb_bob", vec![0.1, 0.2], "takes 5"),
+        ("", vec![0.1, 0.0, 0.0, 0.0, 0.0], "without a model"),
+    ] {
+        let mut r = good.clone();
+        let info = r.frames[0].camera_info.as_mut().unwrap();
+        info.distortion_model = model.into();
+        info.d = d;
+        let e = client.complete(r, None).await.err().unwrap();
+        assert_eq!(e.code(), Code::InvalidArgument, "{model}: {e:?}");
+        assert!(
+            e.message().contains("frames[0].camera_info.d") && e.message().contains(says),
+            "{model}: {}",
+            e.message()
+        );
+    }
+    let mut r = good.clone();
+    let info = r.frames[0].camera_info.as_mut().unwrap();
+    info.distortion_model = "plumb_bob".into();
+    info.d = vec![-0.05, 0.01, 0.0, 0.0, 0.0];
+    assert!(client.complete(r, None).await.is_ok());
     // The same depth as float32 millimetres: refused, saying what to do.
     let mut r = good.clone();
     let d = r.frames[0].depth.as_mut().unwrap();

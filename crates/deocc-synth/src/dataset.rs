@@ -375,6 +375,7 @@ pub fn write_scene(
             name: frame_name(v),
             intrinsics: view.camera.intrinsics,
             world_from_camera: Some(view.camera.world_from_camera),
+            lens: Default::default(),
         })
         .collect();
     write_cameras_json(&dir.join("cameras.json"), &frames)?;
