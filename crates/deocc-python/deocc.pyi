@@ -94,6 +94,17 @@ def grasp(
 ) -> List[Grasp]:
     """Antipodal grasps on instance `target`, best first, checked against every point."""
 
+def target_at(
+    points: npt.NDArray[np.float32],
+    instance: npt.NDArray[np.uint32],
+    pixel: Sequence[float],
+    camera: Dict[str, Any],
+) -> int:
+    """The instance seen at pixel (u, v) or filling box (u0, v0, u1, v1) of a view.
+
+    `camera`: K (3x3), width, height, and optionally pose (4x4 world from camera),
+    distortion_model and D (then pixels are of the image as the camera gave it)."""
+
 def placing_options() -> Dict[str, Any]:
     """Pipeline options for planning placements (every far side thin), for `run(options=...)`."""
 

@@ -31,9 +31,12 @@ pub struct SceneArgs {
     observed: bool,
 }
 
-/// The scene's completed cloud (or observed with `--observed`) with `options`, its first camera
-/// and how many frames it has.
-fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<(PointCloud, Camera, usize)> {
+/// The scene's completed cloud (or observed with `--observed`) with `options`, and its frames'
+/// names and cameras.
+fn completed(
+    a: &SceneArgs,
+    options: &PipelineOptions,
+) -> Result<(PointCloud, Vec<(String, Camera)>)> {
     let mut scene = read_scene(&a.scene)?;
     let mut options = options.clone();
     a.depth.apply(&mut options);
@@ -61,16 +64,18 @@ fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<(PointCloud, Ca
         &deocc_pipeline::Unobserved,
     )?;
     crate::run::print_depth_fill(&out.report.depth_fill);
-    let camera = scene.frames[0].camera;
-    let frames = scene.frames.len();
+    let cameras = scene
+        .frames
+        .iter()
+        .map(|f| (f.name.clone(), f.camera))
+        .collect();
     Ok((
         if a.observed {
             out.observed
         } else {
             out.completed
         },
-        camera,
-        frames,
+        cameras,
     ))
 }
 
@@ -117,9 +122,20 @@ pub fn grasp_options(path: Option<&Path>) -> Result<GraspOptions> {
 pub struct GraspArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Instance id of the object to grasp (as in the instance maps).
-    #[arg(long)]
-    target: u32,
+    /// Instance id of the object to grasp (as in the instance maps or a run's instances.png).
+    #[arg(long, required_unless_present_any = ["target_pixel", "target_box"])]
+    target: Option<u32>,
+    /// The object to grasp is the one seen at pixel `U,V` of `--target-view` (pixels of the
+    /// image as the camera gave it: a stated lens distortion is accounted for).
+    #[arg(long, value_name = "U,V", conflicts_with_all = ["target", "target_box"])]
+    target_pixel: Option<String>,
+    /// The object to grasp is the one filling most of box `U0,V0,U1,V1` in `--target-view`.
+    #[arg(long, value_name = "U0,V0,U1,V1", conflicts_with = "target")]
+    target_box: Option<String>,
+    /// The frame `--target-pixel` / `--target-box` refer to (its name in cameras.json);
+    /// default the first frame.
+    #[arg(long, value_name = "FRAME")]
+    target_view: Option<String>,
     /// Planner settings (JSON of the grasp options: gripper geometry, seeds, friction, top_k).
     #[arg(long)]
     options: Option<PathBuf>,
@@ -128,21 +144,78 @@ pub struct GraspArgs {
 #[derive(serde::Serialize)]
 struct GraspAnswer<'a> {
     target: u32,
+    /// How the target was chosen when not by id (`--target-pixel 320,240 in frame "000000"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    target_picked_by: Option<String>,
     target_points: usize,
     planner: &'a str,
     gripper: deocc_robot::GripperConfig,
     grasps: Vec<deocc_robot::Grasp>,
 }
 
+/// The instance `--target-pixel` / `--target-box` point at, with how it was found.
+fn picked_target(
+    a: &GraspArgs,
+    cloud: &PointCloud,
+    cameras: &[(String, Camera)],
+) -> Result<(u32, Option<String>)> {
+    let (flag, text) = match (&a.target_pixel, &a.target_box, a.target) {
+        (Some(p), _, _) => ("--target-pixel", p),
+        (None, Some(b), _) => ("--target-box", b),
+        (None, None, Some(id)) => return Ok((id, None)),
+        (None, None, None) => bail!("give --target ID, --target-pixel U,V or --target-box"),
+    };
+    let mut pick =
+        deocc_robot::target::Pick::parse(text).map_err(|e| anyhow::anyhow!("{flag} {e}"))?;
+    let (name, camera) = match &a.target_view {
+        Some(v) => cameras.iter().find(|(n, _)| n == v).ok_or_else(|| {
+            let names: Vec<&str> = cameras.iter().map(|(n, _)| n.as_str()).collect();
+            anyhow::anyhow!("--target-view {v:?}: no such frame (frames: {names:?})")
+        })?,
+        None => &cameras[0],
+    };
+    // Pixels of the image as given: through the frame's lens, if cameras.json states one.
+    let lens = deocc_io::cameras::read_cameras_json(&a.scene.scene.join("cameras.json"))
+        .ok()
+        .and_then(|c| c.into_iter().find(|f| &f.name == name))
+        .map(|f| f.lens.distortion)
+        .unwrap_or_default();
+    let k = &camera.intrinsics;
+    let through = |u: f32, v: f32| -> Result<(f32, f32)> {
+        lens.undistort_pixel(k, u as f64, v as f64)
+            .map(|(u, v)| (u as f32, v as f32))
+            .ok_or_else(|| anyhow::anyhow!("{flag} {text}: outside the lens model's range"))
+    };
+    use deocc_robot::target::Pick;
+    pick = match pick {
+        Pick::Pixel { u, v } => {
+            let (u, v) = through(u, v)?;
+            Pick::Pixel { u, v }
+        }
+        Pick::Box { u0, v0, u1, v1 } => {
+            let ((u0, v0), (u1, v1)) = (through(u0, v0)?, through(u1, v1)?);
+            Pick::Box { u0, v0, u1, v1 }
+        }
+    };
+    let id = deocc_robot::target::instance_at(cloud, camera, pick)
+        .map_err(|e| anyhow::anyhow!("{flag} {text} in frame {name:?}: {e}"))?;
+    Ok((id, Some(format!("{flag} {text} in frame {name:?}"))))
+}
+
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let options = grasp_options(a.options.as_deref())?;
-    let (cloud, camera, _) = completed(&a.scene, &PipelineOptions::default())?;
+    let (cloud, cameras) = completed(&a.scene, &PipelineOptions::default())?;
+    let camera = cameras[0].1;
+    let (target_id, picked) = picked_target(&a, &cloud, &cameras)?;
+    if let Some(how) = &picked {
+        eprintln!("target: instance {target_id} ({how})");
+    }
     let ids = cloud.instance.clone().unwrap_or_default();
     let target: Vec<_> = cloud
         .positions
         .iter()
         .zip(&ids)
-        .filter(|(_, &i)| i == a.target)
+        .filter(|(_, &i)| i == target_id)
         .map(|(p, _)| *p)
         .collect();
     if target.is_empty() {
@@ -151,7 +224,7 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
         present.dedup();
         bail!(
             "--target {}: no such instance in {} (instances: {:?})",
-            a.target,
+            target_id,
             a.scene.scene.display(),
             present
         );
@@ -161,7 +234,7 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     };
     let grasps = planner
         .plan(&cloud.positions, &target)
-        .map_err(|e| anyhow::anyhow!("--target {}: {e}", a.target))?;
+        .map_err(|e| anyhow::anyhow!("--target {}: {e}", target_id))?;
     let mut img = deocc_pipeline::render::splat(&cloud, &camera, 1, true);
     let project = |p: &nalgebra::Point3<f32>| camera.project_world(p).map(|(px, _)| [px.x, px.y]);
     for (k, g) in grasps.iter().enumerate().rev() {
@@ -176,7 +249,7 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
         eprintln!(
             "{} grasps on instance {} ({} points); best score {:.3}",
             grasps.len(),
-            a.target,
+            target_id,
             target.len(),
             grasps.first().map(|g| g.score).unwrap_or(0.0)
         );
@@ -186,7 +259,8 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
         &a.scene.scene,
         "grasps",
         &GraspAnswer {
-            target: a.target,
+            target: target_id,
+            target_picked_by: picked,
             target_points: target.len(),
             planner: planner.name(),
             gripper: options.gripper,
@@ -256,7 +330,8 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         (Some(Unseen::AsPoints), _) | (None, false) => UnseenSpace::AsPoints,
     };
     // Thin far sides: what a placement map needs (PipelineOptions::for_placing).
-    let (cloud, camera, frames) = completed(&a.scene, &PipelineOptions::default().for_placing())?;
+    let (cloud, cameras) = completed(&a.scene, &PipelineOptions::default().for_placing())?;
+    let (camera, frames) = (cameras[0].1, cameras.len());
     let robot = nalgebra::Point3::from(camera.world_from_camera.translation.vector);
     let placer = GridPlacer {
         options: options.clone(),

@@ -146,3 +146,114 @@ fn eval_grasp_names_each_options_file() {
         assert!(!dir.path().join("grasp.json").exists());
     }
 }
+
+/// `--target-pixel` on the example scene (bench-v1 scene 0): a pixel well inside an object's
+/// visible mask in the first view is answered with that object; a pixel on nothing says where
+/// the instances are.
+#[test]
+fn grasp_takes_the_target_by_pixel_on_the_example() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = deocc()
+        .args([
+            "synth", "scenes", "--preset", "bench-v1", "--first", "1", "--out",
+        ])
+        .arg(tmp.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene = tmp.path().join("scene_000000");
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(scene.join("scene.json")).unwrap()).unwrap();
+    let structure: Vec<u64> = info["objects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|o| o["structure"].as_bool() == Some(true))
+        .map(|o| o["instance_id"].as_u64().unwrap())
+        .collect();
+    let ids = image::open(scene.join("instances/000000.png"))
+        .unwrap()
+        .into_luma16();
+    // The object pixel deepest inside its own mask (largest all-same square around it).
+    let (w, h) = ids.dimensions();
+    let mut best = (0u32, 0u32, 0u32, 0u16);
+    for v in 0..h {
+        for u in 0..w {
+            let id = ids.get_pixel(u, v).0[0];
+            if id == 0 || structure.contains(&(id as u64)) {
+                continue;
+            }
+            let mut r = 0;
+            while r < 40
+                && u >= r + 1
+                && v >= r + 1
+                && u + r + 1 < w
+                && v + r + 1 < h
+                && [
+                    (u - r - 1, v),
+                    (u + r + 1, v),
+                    (u, v - r - 1),
+                    (u, v + r + 1),
+                ]
+                .iter()
+                .all(|&(a, b)| ids.get_pixel(a, b).0[0] == id)
+            {
+                r += 1;
+            }
+            if r > best.2 {
+                best = (u, v, r, id);
+            }
+        }
+    }
+    let (u, v, r, id) = best;
+    assert!(r >= 5, "no object is visible in the first view");
+    let o = deocc()
+        .arg("grasp")
+        .arg(&scene)
+        .args([
+            "--target-pixel",
+            &format!("{u},{v}"),
+            "--completer",
+            "rules",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let answer: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(answer["target"].as_u64(), Some(id as u64), "{answer}");
+    assert!(answer["target_picked_by"]
+        .as_str()
+        .unwrap()
+        .contains("--target-pixel"));
+    assert!(answer["target_points"].as_u64().unwrap() > 0);
+    // Outside the image: refused, naming the flag and the view's size.
+    let o = deocc()
+        .arg("grasp")
+        .arg(&scene)
+        .args(["--target-pixel", "5000,10", "--completer", "rules"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--target-pixel") && err.contains("outside"),
+        "{err}"
+    );
+    // An unknown view is named with the ones there are.
+    let o = deocc()
+        .arg("grasp")
+        .arg(&scene)
+        .args([
+            "--target-pixel",
+            "1,1",
+            "--target-view",
+            "nope",
+            "--completer",
+            "rules",
+        ])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("\"nope\"") && err.contains("000000"), "{err}");
+}

@@ -496,6 +496,71 @@ fn grasp<'py>(
     Ok(out)
 }
 
+/// Which instance of a cloud a pixel `(u, v)` or a box `(u0, v0, u1, v1)` of a view points at:
+/// the surface in front there (a box: the instance with the largest share of its pixels inside).
+/// `camera` is a dict with `K` (3x3), `width`, `height`, optional `pose` (4x4 world from
+/// camera), `distortion_model` and `D` (pixels are then of the image as the camera gave it).
+#[pyfunction]
+fn target_at(
+    points: PyReadonlyArray2<'_, f32>,
+    instance: PyReadonlyArray1<'_, u32>,
+    pixel: Vec<f32>,
+    camera: &Bound<'_, PyAny>,
+) -> PyResult<u32> {
+    let pts = points_from(points, "points")?;
+    let ids: Vec<u32> = instance.as_array().iter().copied().collect();
+    if ids.len() != pts.len() {
+        return Err(value_error(format!(
+            "instance: {} ids for {} points",
+            ids.len(),
+            pts.len()
+        )));
+    }
+    let cam = camera.cast::<PyDict>().map_err(|_| {
+        value_error("camera: expected a dict with K, width, height (and pose, distortion_model, D)")
+    })?;
+    let get = |key: &str| -> PyResult<Option<Bound<'_, PyAny>>> {
+        cam.get_item(key).map(|v| v.filter(|v| !v.is_none()))
+    };
+    let need = |key: &str| -> PyResult<Bound<'_, PyAny>> {
+        get(key)?.ok_or_else(|| value_error(format!("camera: missing {key:?}")))
+    };
+    let size = |key: &str| -> PyResult<u32> {
+        need(key)?
+            .extract::<u32>()
+            .map_err(|_| value_error(format!("camera[{key:?}]: expected a positive int")))
+    };
+    let pick = proto::TargetPick {
+        pixel,
+        camera_info: Some(proto::CameraInfo {
+            width: size("width")?,
+            height: size("height")?,
+            k: matrix(&need("K")?, "camera['K']", 3)?,
+            distortion_model: match get("distortion_model")? {
+                Some(m) => m
+                    .extract()
+                    .map_err(|_| value_error("camera['distortion_model']: expected a str"))?,
+                None => String::new(),
+            },
+            d: match get("D")? {
+                Some(d) => d
+                    .extract()
+                    .map_err(|_| value_error("camera['D']: expected a sequence of numbers"))?,
+                None => Vec::new(),
+            },
+        }),
+        world_from_camera: match get("pose")? {
+            Some(p) => matrix(&p, "camera['pose']", 4)?,
+            None => Vec::new(),
+        },
+    };
+    let (view, pick) = deocc_service::request::target_pick(&pick)
+        .map_err(|e| value_error(e.to_string().replace("target_pick.", "")))?;
+    let mut cloud = deocc_geometry::PointCloud::from_positions(pts);
+    cloud.instance = Some(ids);
+    deocc_robot::target::instance_at(&cloud, &view, pick).map_err(value_error)
+}
+
 /// The pipeline options for planning placements (`PipelineOptions::for_placing`: every
 /// completer's far side thin), as a dict for `run(frames, options=...)`; `deocc place` uses them.
 #[pyfunction]
@@ -648,6 +713,7 @@ fn deocc(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_scene, m)?)?;
     m.add_function(wrap_pyfunction!(read_ply, m)?)?;
     m.add_function(wrap_pyfunction!(grasp, m)?)?;
+    m.add_function(wrap_pyfunction!(target_at, m)?)?;
     m.add_function(wrap_pyfunction!(place, m)?)?;
     m.add_function(wrap_pyfunction!(placing_options, m)?)?;
     m.add_class::<Client>()?;

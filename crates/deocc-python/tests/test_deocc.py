@@ -176,6 +176,32 @@ class Deocc(unittest.TestCase):
         with self.assertRaisesRegex(ValueError, "JSON object"):
             deocc.run(small(self.frames, 1), completer="rules", options=[])
 
+    def test_target_at_a_pixel(self):
+        # The pixel deepest inside an object's mask in the first view names that object.
+        f = self.frames[0]
+        res = deocc.run(small(self.frames, 1), completer="rules",
+                        structure_ids=self.structure)
+        ids = f["instances"].astype(np.int64)
+        best, best_r = None, 0
+        for v in range(8, ids.shape[0] - 8, 2):
+            for u in range(8, ids.shape[1] - 8, 2):
+                i = ids[v, u]
+                if i == 0 or i in self.structure:
+                    continue
+                r = 0
+                while r < 7 and (ids[v - r - 1:v + r + 2, u - r - 1:u + r + 2] == i).all():
+                    r += 1
+                if r > best_r:
+                    best, best_r = (u, v, int(i)), r
+        u, v, want = best
+        camera = {"K": f["K"], "width": ids.shape[1], "height": ids.shape[0], "pose": f["pose"]}
+        got = deocc.target_at(res["points"], res["instance"], (u + 0.5, v + 0.5), camera)
+        self.assertEqual(got, want)
+        with self.assertRaisesRegex(ValueError, "outside"):
+            deocc.target_at(res["points"], res["instance"], (1e5, 3), camera)
+        with self.assertRaisesRegex(ValueError, "width"):
+            deocc.target_at(res["points"], res["instance"], (3, 3), {"K": f["K"]})
+
     def test_ctrl_c_stops_a_run(self):
         # A run goes on without the GIL; Ctrl-C used to be ignored until it ended.
         scene, _ = cli_example()

@@ -12,6 +12,7 @@ pub mod gripper;
 pub mod picture;
 pub mod place;
 pub mod range;
+pub mod target;
 
 pub use grasp::{AntipodalPlanner, GraspOptions, GraspPlanner};
 pub use gripper::{Grasp, GripperConfig};

@@ -442,3 +442,53 @@ pub fn request_from_scene(scene: &SceneInput, options_json: &str) -> CompleteReq
         structure_ids: scene.structure_ids.iter().map(|&i| u32::from(i)).collect(),
     }
 }
+
+/// The view and pick of a `target_pick`: the camera (pinhole, pose) and the pixel or box moved
+/// through the view's lens into pinhole pixels.
+pub fn target_pick(
+    p: &crate::proto::TargetPick,
+) -> Result<(Camera, deocc_robot::target::Pick), FieldError> {
+    use deocc_robot::target::Pick;
+    let at = "target_pick";
+    let info = p
+        .camera_info
+        .as_ref()
+        .ok_or_else(|| bad(format!("{at}.camera_info"), "missing"))?;
+    let intr = intrinsics(info, &format!("{at}.camera_info"), &Limits::default())?;
+    let lens = Distortion::from_ros(&info.distortion_model, &info.d)
+        .map_err(|e| bad(format!("{at}.camera_info.d"), e))?;
+    let world_from_camera = if p.world_from_camera.is_empty() {
+        Isometry3::identity()
+    } else {
+        pose(&p.world_from_camera, &format!("{at}.world_from_camera"))?
+    };
+    let text = p
+        .pixel
+        .iter()
+        .map(|v| v.to_string())
+        .collect::<Vec<_>>()
+        .join(",");
+    let pick = Pick::parse(&text).map_err(|e| bad(format!("{at}.pixel"), e))?;
+    let through = |u: f32, v: f32| {
+        lens.undistort_pixel(&intr, u as f64, v as f64)
+            .map(|(u, v)| (u as f32, v as f32))
+            .ok_or_else(|| bad(format!("{at}.pixel"), "outside the lens model's range"))
+    };
+    let pick = match pick {
+        Pick::Pixel { u, v } => {
+            let (u, v) = through(u, v)?;
+            Pick::Pixel { u, v }
+        }
+        Pick::Box { u0, v0, u1, v1 } => {
+            let ((u0, v0), (u1, v1)) = (through(u0, v0)?, through(u1, v1)?);
+            Pick::Box { u0, v0, u1, v1 }
+        }
+    };
+    Ok((
+        Camera {
+            intrinsics: intr,
+            world_from_camera,
+        },
+        pick,
+    ))
+}

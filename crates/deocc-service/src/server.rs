@@ -412,23 +412,30 @@ fn grasp(req: &GraspRequest) -> Result<GraspResponse, Status> {
         .instance
         .as_ref()
         .ok_or_else(|| Status::invalid_argument("cloud.fields: no instance field"))?;
+    let target_id = match &req.target_pick {
+        Some(p) => {
+            let (camera, pick) = crate::request::target_pick(p).map_err(|e| status_of(&e))?;
+            deocc_robot::target::instance_at(&cloud, &camera, pick)
+                .map_err(|e| Status::invalid_argument(format!("target_pick: {e}")))?
+        }
+        None => req.target,
+    };
     let target: Vec<_> = cloud
         .positions
         .iter()
         .zip(ids)
-        .filter(|(_, &i)| i == req.target)
+        .filter(|(_, &i)| i == target_id)
         .map(|(p, _)| *p)
         .collect();
     if target.is_empty() {
         return Err(Status::invalid_argument(format!(
-            "target: no point of the cloud has instance {}",
-            req.target
+            "target: no point of the cloud has instance {target_id}"
         )));
     }
     let planner = AntipodalPlanner { options };
     let grasps = planner
         .plan(&cloud.positions, &target)
-        .map_err(|e| Status::invalid_argument(format!("target {}: {e}", req.target)))?;
+        .map_err(|e| Status::invalid_argument(format!("target {target_id}: {e}")))?;
     Ok(GraspResponse {
         grasps: grasps
             .iter()
@@ -441,6 +448,7 @@ fn grasp(req: &GraspRequest) -> Result<GraspResponse, Status> {
             .collect(),
         target_points: target.len() as u64,
         planner: planner.name().into(),
+        target: target_id,
     })
 }
 

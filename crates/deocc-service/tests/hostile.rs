@@ -361,6 +361,7 @@ async fn health_counts_every_call_and_returns_to_zero_after_cancels() {
             cloud,
             target,
             options_json: r#"{"seeds": 1500, "approaches": 20}"#.into(),
+            target_pick: None,
         })
         .await
     });
@@ -413,6 +414,7 @@ async fn a_unary_call_answers_at_its_deadline_and_bad_options_are_refused_by_nam
                 cloud: cloud.clone(),
                 target,
                 options_json: options.into(),
+                target_pick: None,
             })
             .await
             .unwrap_err();
@@ -438,6 +440,7 @@ async fn a_unary_call_answers_at_its_deadline_and_bad_options_are_refused_by_nam
         cloud,
         target,
         options_json: r#"{"seeds": 1600, "approaches": 20}"#.into(),
+        target_pick: None,
     };
     let mut call = RawCall::open(&server.addr, "Grasp", &[("grpc-timeout", b"300m")])
         .await

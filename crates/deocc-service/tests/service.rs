@@ -151,6 +151,7 @@ async fn a_completion_over_grpc_equals_the_pipeline_in_process() {
             cloud: got.result.cloud.clone(),
             target,
             options_json: String::new(),
+            target_pick: None,
         })
         .await;
     match g {
@@ -163,11 +164,56 @@ async fn a_completion_over_grpc_equals_the_pipeline_in_process() {
             cloud: got.result.cloud.clone(),
             target: 60_000,
             options_json: String::new(),
+            target_pick: None,
         })
         .await
         .unwrap_err();
     assert_eq!(e.code(), Code::InvalidArgument);
     assert!(e.message().starts_with("target"), "{e:?}");
+    // The target by a pixel of the first view: the object whose mask holds the pixel with the
+    // most of the same id around it.
+    let f0 = &s.frames[0];
+    let inst = f0.instances.as_ref().unwrap();
+    let (w, h) = (inst.width, inst.height);
+    let at = |u: u32, v: u32| inst.ids[(v * w + u) as usize];
+    let (mut best, mut best_r) = ((0, 0, 0u16), 0);
+    for v in 8..h - 8 {
+        for u in 8..w - 8 {
+            let id = at(u, v);
+            if id == 0 || s.structure_ids.contains(&id) {
+                continue;
+            }
+            let r = (1..8)
+                .take_while(|&r| {
+                    at(u - r, v) == id
+                        && at(u + r, v) == id
+                        && at(u, v - r) == id
+                        && at(u, v + r) == id
+                })
+                .count();
+            if r > best_r {
+                (best, best_r) = ((u, v, id), r);
+            }
+        }
+    }
+    let frame0 = &request_from_scene(&s, "").frames[0];
+    let pick = deocc_service::proto::TargetPick {
+        pixel: vec![best.0 as f32 + 0.5, best.1 as f32 + 0.5],
+        camera_info: frame0.camera_info.clone(),
+        world_from_camera: frame0.world_from_camera.clone(),
+    };
+    let g = client
+        .grasp(GraspRequest {
+            cloud: got.result.cloud.clone(),
+            target: 0,
+            options_json: String::new(),
+            target_pick: Some(pick),
+        })
+        .await;
+    match g {
+        Ok(g) => assert_eq!(g.target, best.2 as u32, "picked the wrong instance"),
+        Err(s) => assert!(s.message().contains(&format!("target {}", best.2)), "{s:?}"),
+    }
     let p = client
         .place(PlaceRequest {
             cloud: got.result.cloud.clone(),

@@ -355,6 +355,7 @@ pub fn soak_bench(exe: &Path, opts: &SoakOptions) -> Result<SoakReport, EvalErro
             cloud: reference.clone(),
             target,
             options_json: String::new(),
+            target_pick: None,
         };
         let tallies: Tallies = Arc::default();
         let deadline = Instant::now() + Duration::from_secs_f64(opts.seconds);
