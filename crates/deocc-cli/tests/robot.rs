@@ -185,8 +185,8 @@ fn grasp_takes_the_target_by_pixel_on_the_example() {
             }
             let mut r = 0;
             while r < 40
-                && u >= r + 1
-                && v >= r + 1
+                && u > r
+                && v > r
                 && u + r + 1 < w
                 && v + r + 1 < h
                 && [
