@@ -170,8 +170,10 @@ pub fn batch(a: BatchArgs) -> Result<()> {
                 depth
                     .as_ref()
                     .map(|d| d as &dyn deocc_pipeline::depth::DepthSource),
-                a.segment,
-                false,
+                &crate::run::RunHow {
+                    segment: a.segment,
+                    ..Default::default()
+                },
             ) {
                 Ok(run) => {
                     let r = &run.result.report;

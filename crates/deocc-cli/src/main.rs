@@ -10,6 +10,7 @@ mod bench;
 mod completers;
 mod depth;
 mod eval;
+mod input;
 mod progress;
 mod report;
 mod robot;

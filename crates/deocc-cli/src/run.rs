@@ -8,15 +8,18 @@ use clap::Args;
 use deocc_pipeline::depth::DepthSource;
 use deocc_pipeline::output::{write_output, Staging};
 use deocc_pipeline::segment::ConvexitySegmenter;
-use deocc_pipeline::{read_scene, PipelineOptions};
+use deocc_pipeline::PipelineOptions;
 
 use crate::completers::CompleterArgs;
 use crate::depth::DepthArgs;
 
 #[derive(Args)]
 pub struct RunArgs {
-    /// Scene folder: rgb/, depth/ (16-bit mm), cameras.json, optional instances/ (u16 ids).
+    /// Scene folder (rgb/, depth/, cameras.json, optional instances/), TUM RGB-D sequence
+    /// folder (rgb.txt, depth.txt, groundtruth.txt) or MCAP recording (.mcap).
     input: Option<PathBuf>,
+    #[command(flatten)]
+    input_args: crate::input::InputArgs,
     /// Output folder (replaced if it holds a previous run's output).
     #[arg(long)]
     out: PathBuf,
@@ -47,6 +50,15 @@ pub struct RunArgs {
     mcap: bool,
 }
 
+/// How [`run_scene`] reads and what it writes besides the output: segment even frames with
+/// instance maps, write `recording.mcap`, and how to read recordings and sequences.
+#[derive(Default)]
+pub struct RunHow {
+    pub segment: bool,
+    pub mcap: bool,
+    pub input: deocc_pipeline::recording::RecordingOptions,
+}
+
 /// What [`run_scene`] made: the pipeline's result, the evaluation against the scene's ground
 /// truth (if it has one), and the output folder.
 pub struct SceneRun {
@@ -66,9 +78,9 @@ pub fn run_scene(
     chain: &deocc_completion::CompleterChain,
     opts: &PipelineOptions,
     depth: Option<&dyn DepthSource>,
-    segment: bool,
-    mcap: bool,
+    how: &RunHow,
 ) -> Result<SceneRun> {
+    let (segment, mcap, input_opts) = (how.segment, how.mcap, &how.input);
     let staging = Staging::begin(out, input)?;
     let (input_dir, reported_input) = match input {
         Some(p) => (p.to_path_buf(), p.to_path_buf()),
@@ -78,7 +90,10 @@ pub fn run_scene(
             (dir, staging.out().join("input"))
         }
     };
-    let mut scene = read_scene(&input_dir)?;
+    let mut scene = deocc_pipeline::recording::read_input(&input_dir, input_opts)?;
+    // The recording holds the input as read (before the depth front end and segmentation), so
+    // `deocc run recording.mcap` repeats this run.
+    let as_read = mcap.then(|| scene.clone());
     let prepared = deocc_pipeline::front::prepare(
         &mut scene,
         opts,
@@ -126,7 +141,7 @@ pub fn run_scene(
         let annotations = crate::robot::recording_annotations(&result.completed, robot);
         deocc_pipeline::record::write_mcap(
             &staging.dir().join("recording.mcap"),
-            &scene,
+            as_read.as_ref().unwrap_or(&scene),
             &result.completed,
             Some(&annotations),
         )?;
@@ -189,8 +204,11 @@ pub fn run(a: RunArgs) -> Result<()> {
         &chain,
         &opts,
         depth.as_ref().map(|d| d as &dyn DepthSource),
-        a.segment,
-        a.mcap,
+        &RunHow {
+            segment: a.segment,
+            mcap: a.mcap,
+            input: a.input_args.options()?,
+        },
     )?;
     let r = &result.report;
     println!(

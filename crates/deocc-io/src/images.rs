@@ -56,6 +56,17 @@ fn open_image_expecting(path: &Path, expected: Option<(u32, u32)>) -> Result<ima
     reader()?.decode().map_err(image_err)
 }
 
+/// An image's (width, height) from its header, nothing decoded.
+pub fn image_size(path: &Path) -> Result<(u32, u32)> {
+    let mut r = image::ImageReader::open(path)
+        .map_err(|e| IoError::new(path, e))?
+        .with_guessed_format()
+        .map_err(|e| IoError::new(path, e))?;
+    r.no_limits();
+    r.into_dimensions()
+        .map_err(|e| IoError::new(path, IoErrorKind::Image(e.to_string())))
+}
+
 fn encode_png<P, C>(path: &Path, img: &ImageBuffer<P, C>, filter: FilterType) -> Result<()>
 where
     P: image::Pixel + image::PixelWithColorType,

@@ -13,6 +13,7 @@
 //! - [`npy`]: float32 / uint16 depth as NumPy arrays;
 //! - [`mesh`]: OBJ / STL / PLY meshes;
 //! - [`scene`]: the scene folder (frames, cameras, metadata), deocc's input;
+//! - [`tum`]: the TUM RGB-D sequence layout, read into the same scene;
 //! - [`pairs`]: GL-DoT training-pair shards (safetensors).
 
 pub mod atomic;
@@ -25,6 +26,7 @@ pub mod npy;
 pub mod pairs;
 pub mod ply;
 pub mod scene;
+pub mod tum;
 pub mod weights;
 
 pub use error::{IoError, IoErrorKind, Result};

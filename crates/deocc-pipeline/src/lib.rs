@@ -45,6 +45,7 @@ pub mod output;
 pub mod planes;
 pub mod reconstruct;
 pub mod record;
+pub mod recording;
 pub mod registration;
 pub mod render;
 pub mod report;

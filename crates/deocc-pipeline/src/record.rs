@@ -245,6 +245,15 @@ fn record<W: Write + Seek>(
         w: mcap::Writer::new(out)?,
         channels: BTreeMap::new(),
     };
+    // What a scene folder's scene.json says, for `deocc run RECORDING.mcap`.
+    let structure: Vec<String> = scene.structure_ids.iter().map(|i| i.to_string()).collect();
+    r.w.write_metadata(&mcap::records::Metadata {
+        name: "deocc.scene".into(),
+        metadata: BTreeMap::from([
+            ("structure_ids".to_string(), structure.join(",")),
+            ("posed".to_string(), scene.posed.to_string()),
+        ]),
+    })?;
     for (k, f) in scene.frames.iter().enumerate() {
         let t = k as u64 * 100_000_000;
         let id = format!("camera_{}", f.name);
