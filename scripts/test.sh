@@ -28,3 +28,5 @@ bash scripts/dds-buffers.sh
 RUST_TEST_THREADS=2 cargo test --locked --workspace --all-features --release --no-fail-fast
 # The Python package: wheel built, installed in a venv, tested against the CLI.
 bash scripts/test_python.sh
+# report.html in headless Chromium: loads without error, the canvas draws generated points.
+bash scripts/test_browser.sh

@@ -12,6 +12,12 @@
 //!   render_novel_view.png         the same from higher up and to the side
 //!   render_occluders_removed.png  before / after from the first view without the objects that
 //!                                 hid the completed ones (when there are any)
+//!   render_objects.png            each completed object (first eight): observed only beside
+//!                                 observed + generated, from a view of its hidden side
+//!   objects/object_NNNN.png       the same panel for every completed object
+//!   report.html                   one self-contained page: an interactive 3-D view of the cloud
+//!                                 (toggle provenance and instances, colour by confidence), the
+//!                                 pictures and the run's figures
 //! ```
 //!
 //! [`Staging`] assembles the folder beside `OUT` (`.OUT.partial-PID`) and swaps it in only when
@@ -32,6 +38,7 @@ use deocc_io::PlyEncoding;
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
+use crate::pictures::captioned;
 use crate::render::{side_by_side, splat};
 use crate::{PipelineError, PipelineOutput, RunReport};
 
@@ -402,6 +409,13 @@ pub fn write_output<E: Serialize>(
         evaluation,
     };
     deocc_io::cameras::write_json(&dir.join(REPORT_FILE), &report)?;
+    let as_json = serde_json::to_value(&report).map_err(|e| err(dir, e.to_string()))?;
+    crate::report_html::write_report_html(
+        dir,
+        &result.completed,
+        scene.frames.first().map(|f| &f.camera),
+        &as_json,
+    )?;
     Ok(())
 }
 
@@ -427,17 +441,56 @@ fn write_pictures(
         return Ok(());
     };
     let cam = first.camera;
+    let legend: &[([u8; 3], &str)] = &[
+        (crate::render::GENERATED_COLOR, "generated object points"),
+        ([200, 120, 170], "plane fill (tinted)"),
+    ];
     let before = splat(&result.observed, &cam, 1, true);
     let after = splat(&result.completed, &cam, 1, true);
     deocc_io::images::write_rgb_png(
         &dir.join("render_input_view.png"),
-        &side_by_side(&before, &after),
+        &captioned(
+            &side_by_side(&before, &after),
+            "input view - left: observed, right: completed",
+            legend,
+        ),
     )?;
     let focus = result.observed.centroid().unwrap_or(Point3::origin());
     if let Some(novel) = novel_view_camera(&cam, &focus) {
         let b = splat(&result.observed, &novel, 1, true);
         let c = splat(&result.completed, &novel, 1, true);
-        deocc_io::images::write_rgb_png(&dir.join("render_novel_view.png"), &side_by_side(&b, &c))?;
+        deocc_io::images::write_rgb_png(
+            &dir.join("render_novel_view.png"),
+            &captioned(
+                &side_by_side(&b, &c),
+                "novel view - left: observed, right: completed",
+                legend,
+            ),
+        )?;
+    }
+    // One panel per completed object, from a viewpoint that sees its hidden side.
+    let completed_ids: Vec<u32> = result
+        .report
+        .instances
+        .iter()
+        .filter(|i| i.generated_points > 0)
+        .map(|i| i.instance_id as u32)
+        .collect();
+    let panels = crate::pictures::object_panels(&result.completed, &completed_ids, &cam);
+    if !panels.is_empty() {
+        let obj_dir = dir.join("objects");
+        std::fs::create_dir_all(&obj_dir).map_err(|e| err(&obj_dir, e.to_string()))?;
+        for (id, p) in &panels {
+            deocc_io::images::write_rgb_png(&obj_dir.join(format!("object_{id:04}.png")), p)?;
+        }
+        let firsts: Vec<&image::RgbImage> = panels
+            .iter()
+            .take(crate::pictures::MAX_STACKED)
+            .map(|(_, p)| p)
+            .collect();
+        if let Some(all) = crate::pictures::stacked(&firsts) {
+            deocc_io::images::write_rgb_png(&dir.join("render_objects.png"), &all)?;
+        }
     }
     let hid = occluders_of_completed(&result.report, &scene.structure_ids);
     if !hid.is_empty() {
@@ -449,7 +502,11 @@ fn write_pictures(
         let after = splat(&without(&result.completed), &cam, 1, true);
         deocc_io::images::write_rgb_png(
             &dir.join("render_occluders_removed.png"),
-            &side_by_side(&before, &after),
+            &captioned(
+                &side_by_side(&before, &after),
+                "occluders hidden - left: observed, right: completed",
+                legend,
+            ),
         )?;
     }
     Ok(())
