@@ -41,7 +41,8 @@ pub struct RecordingOptions {
     pub depth: Option<String>,
     /// Calibration topic (or pattern); default the sibling `calibration` or `camera_info`.
     pub info: Option<String>,
-    /// The TF child frame whose transform is the camera pose; default each image's `frame_id`.
+    /// The camera pose: a `geometry_msgs/PoseStamped` topic, or the TF child frame whose
+    /// transform it is; default each image's `frame_id` in `/tf`.
     pub poses: Option<String>,
     pub pick: FramePick,
 }
@@ -188,6 +189,15 @@ fn cdr_info(buf: &[u8]) -> Result<Info, String> {
         model,
         d,
     })
+}
+
+/// geometry_msgs/PoseStamped: (stamp, world-from-camera).
+fn cdr_pose(buf: &[u8]) -> Result<(i64, Isometry3<f32>), String> {
+    let mut c = Cdr::new(buf)?;
+    let (stamp, _) = c.header()?;
+    let t: Vec<f64> = (0..3).map(|_| c.f64()).collect::<Result<_, _>>()?;
+    let q: Vec<f64> = (0..4).map(|_| c.f64()).collect::<Result<_, _>>()?;
+    Ok((stamp, iso(&t, &q)?))
 }
 
 /// TFMessage: (stamp, child frame, parent-from-child).
@@ -427,6 +437,8 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
     let mut inst: BTreeMap<String, Vec<Img>> = BTreeMap::new();
     let mut info: BTreeMap<String, Info> = BTreeMap::new();
     let mut tf: BTreeMap<String, Vec<(i64, Isometry3<f32>)>> = BTreeMap::new();
+    let pose_topic = opts.poses.as_ref().filter(|p| topics.contains(*p)).cloned();
+    let mut pose_msgs: Vec<(i64, Isometry3<f32>)> = Vec::new();
     for m in mcap::MessageStream::new(&bytes).map_err(|e| bad(format!("not an MCAP file: {e}")))? {
         let m = m.map_err(|e| bad(format!("reading the MCAP file: {e}")))?;
         let topic = &m.channel.topic;
@@ -446,7 +458,11 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
                 json_image(&json()?)
             }
         };
-        if let Some(k) = capture(&rgb_pat, topic) {
+        if pose_topic.as_ref() == Some(topic) {
+            if cdr {
+                pose_msgs.push(cdr_pose(&m.data).map_err(at)?);
+            }
+        } else if let Some(k) = capture(&rgb_pat, topic) {
             rgb.push((k, image().map_err(at)?));
         } else if let Some(k) = capture(&depth_pat, topic) {
             depth.entry(k).or_default().push(image().map_err(at)?);
@@ -481,6 +497,13 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             .filter(|&i| (list[i].stamp - t).abs() <= gap)
     };
     let pose_of = |frame: &str, t: i64| -> Option<Isometry3<f32>> {
+        if pose_topic.is_some() {
+            return pose_msgs
+                .iter()
+                .min_by_key(|(s, _)| (s - t).abs())
+                .filter(|(s, _)| (s - t).abs() <= gap)
+                .map(|(_, p)| *p);
+        }
         let child = opts.poses.as_deref().unwrap_or(frame);
         let list = tf.get(child)?;
         list.iter()
@@ -489,11 +512,16 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             .map(|(_, p)| *p)
     };
     if let Some(f) = &opts.poses {
-        if !tf.contains_key(f) {
+        if pose_topic.is_none() && !tf.contains_key(f) {
             let have: Vec<&String> = tf.keys().collect();
             return Err(bad(format!(
-                "--poses {f:?}: no transform has that child frame (frames in /tf: {have:?})"
+                "--poses {f:?}: neither a PoseStamped topic nor a /tf child frame (frames in \
+                 /tf: {have:?}; {})",
+                listing()
             )));
+        }
+        if pose_topic.is_some() && pose_msgs.is_empty() {
+            return Err(bad(format!("--poses {f:?}: no CDR PoseStamped message on it")));
         }
     }
     struct Candidate<'a> {

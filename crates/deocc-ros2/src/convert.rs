@@ -173,8 +173,16 @@ pub fn views_from_request(
                     header: header.clone(),
                     height: info.height,
                     width: info.width,
-                    distortion_model: "plumb_bob".into(),
-                    d: vec![0.0; 5],
+                    distortion_model: if info.distortion_model.is_empty() {
+                        "plumb_bob".into()
+                    } else {
+                        info.distortion_model.clone()
+                    },
+                    d: if info.distortion_model.is_empty() {
+                        vec![0.0; 5]
+                    } else {
+                        info.d.clone()
+                    },
                     k: k9,
                     r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
                     p: [

@@ -6,6 +6,7 @@
 //! and pose matched into views by stamp; [`node`] (feature `ros2`): the bridge node on
 //! `ros2-client`, with the `deocc-ros2` binary on top.
 
+pub mod bag;
 pub mod convert;
 pub mod msgs;
 pub mod sync;

@@ -137,6 +137,11 @@ struct PlayArgs {
     /// Longest wait for subscribers, the service and the answer, seconds.
     #[arg(long, default_value_t = 120.0)]
     timeout: f64,
+    /// Instead of publishing, write what would be published as a ROS 2 bag (MCAP, CDR, as
+    /// `ros2 bag record -s mcap` writes it); `deocc run FILE --rgb TOPIC --depth-topic TOPIC
+    /// --info TOPIC [--poses POSE_TOPIC]` reads it back.
+    #[arg(long, value_name = "FILE.mcap", conflicts_with = "trigger")]
+    record: Option<PathBuf>,
 }
 
 fn main() -> std::process::ExitCode {
@@ -277,6 +282,18 @@ async fn play(a: PlayArgs) -> Result<()> {
         "world",
     );
     let n = views.len();
+    if let Some(path) = &a.record {
+        let topics = deocc_ros2::bag::BagTopics {
+            rgb: a.topics.rgb.clone(),
+            depth: a.topics.depth.clone(),
+            info: a.topics.info.clone(),
+            pose: if scene.posed { a.topics.pose.clone() } else { None },
+        };
+        deocc_ros2::bag::write_bag(path, &views, &topics)
+            .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
+        eprintln!("recorded {n} views to {}", path.display());
+        return Ok(());
+    }
     let cfg = PlayConfig {
         domain_id,
         rgb_topic: a.topics.rgb,
