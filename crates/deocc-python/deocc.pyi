@@ -18,6 +18,10 @@ class Frame(TypedDict, total=False):
     """(H, W) depth: uint16 millimetres or float32 metres (REP-118); 0 or NaN = no measurement."""
     K: Sequence[Sequence[float]]
     """3x3 intrinsics: fx 0 cx / 0 fy cy / 0 0 1."""
+    distortion_model: str
+    """Optional lens model as ROS names it: plumb_bob, rational_polynomial or equidistant."""
+    D: Sequence[float]
+    """Its coefficients in ROS order; the images are undistorted on arrival (same K)."""
     pose: Sequence[Sequence[float]]
     """Optional 4x4 world-from-camera pose (OpenCV axes); every frame or none."""
     instances: npt.NDArray[np.uint16]

@@ -11,6 +11,7 @@ mod completers;
 mod depth;
 mod eval;
 mod input;
+mod options;
 mod progress;
 mod report;
 mod robot;
@@ -92,6 +93,8 @@ enum Command {
     /// cloud, checked for collision against the whole scene; JSON (pose, width, score) and a
     /// picture of the gripper outlines.
     Grasp(robot::GraspArgs),
+    /// Every pipeline option with its default, range and meaning (`--json`, `--markdown`).
+    Options(options::OptionsArgs),
     /// Where an object of a given footprint and height can be put down: a placement map on each
     /// horizontal support surface of the completed cloud and the best spot; JSON and a picture.
     Place(robot::PlaceArgs),
@@ -118,6 +121,7 @@ fn main() -> ExitCode {
         Command::Export(a) => train::export(a),
         Command::Grasp(a) => robot::grasp(a),
         Command::Place(a) => robot::place(a),
+        Command::Options(a) => options::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -59,6 +59,15 @@ fn outputs(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
                 strip_times(&mut v);
                 bytes = serde_json::to_vec(&v).unwrap();
             }
+            if rel.file_name().unwrap() == "report.html" {
+                // The figures table holds the run's timings; the rest must match.
+                let text = String::from_utf8(bytes).unwrap();
+                let (a, b) = (
+                    text.find("<h2>Figures</h2>").unwrap(),
+                    text.find("<h2>Instances</h2>").unwrap(),
+                );
+                bytes = format!("{}{}", &text[..a], &text[b..]).into_bytes();
+            }
             files.insert(rel, bytes);
         }
     }

@@ -527,3 +527,27 @@ fn eval_commands_run_under_a_sensor_model() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("structured-light"));
 }
+
+/// `deocc options` lists every option; docs/options.md is its Markdown, kept equal here
+/// (regenerate with `deocc options --markdown > docs/options.md`).
+#[test]
+fn options_are_listed_and_the_docs_are_current() {
+    let o = deocc().args(["options", "--json"]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let list: Vec<serde_json::Value> = serde_json::from_slice(&o.stdout).unwrap();
+    let names: Vec<&str> = list.iter().map(|r| r["name"].as_str().unwrap()).collect();
+    for want in ["steps", "complete_planes", "depth_clean.radius"] {
+        assert!(names.contains(&want), "{want} missing from {names:?}");
+    }
+    assert!(list
+        .iter()
+        .all(|r| !r["meaning"].as_str().unwrap().is_empty()));
+    let o = deocc().args(["options", "--markdown"]).output().unwrap();
+    assert!(o.status.success());
+    let docs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/options.md");
+    assert_eq!(
+        String::from_utf8(o.stdout).unwrap(),
+        std::fs::read_to_string(&docs).unwrap(),
+        "docs/options.md is stale: regenerate it with `deocc options --markdown > docs/options.md`"
+    );
+}

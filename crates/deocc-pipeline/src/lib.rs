@@ -41,6 +41,7 @@ pub mod instances;
 pub mod matching;
 pub mod occlusion;
 pub mod options;
+pub mod options_help;
 pub mod output;
 pub mod pictures;
 pub mod planes;

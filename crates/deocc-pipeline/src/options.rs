@@ -59,8 +59,6 @@ pub struct PipelineOptions {
     pub cuboid_upright: bool,
     /// Gravity's opposite in the scene's world frame (for the support stage).
     pub up: [f32; 3],
-    /// Masks smaller than this (pixels) are not completed.
-    pub min_visible_px: usize,
     /// Fill the hidden parts of large planes (floor, walls) where the views agree they are
     /// hidden ([`crate::planes`]).
     pub complete_planes: bool,
@@ -234,7 +232,6 @@ impl Default for PipelineOptions {
             revolve_upright: true,
             cuboid_upright: true,
             up: [0.0, 0.0, 1.0],
-            min_visible_px: 200,
             complete_planes: true,
             plane_min_rectangularity: 0.8,
             carve_generated: true,
@@ -444,9 +441,6 @@ impl PipelineOptions {
                 "generated_depth_median_px",
                 format!("{} is outside 0..=16", self.generated_depth_median_px),
             ));
-        }
-        if self.min_visible_px == 0 {
-            return Err(bad("min_visible_px", "must be at least 1"));
         }
         Ok(())
     }

@@ -521,7 +521,9 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             )));
         }
         if pose_topic.is_some() && pose_msgs.is_empty() {
-            return Err(bad(format!("--poses {f:?}: no CDR PoseStamped message on it")));
+            return Err(bad(format!(
+                "--poses {f:?}: no CDR PoseStamped message on it"
+            )));
         }
     }
     struct Candidate<'a> {

@@ -36,8 +36,14 @@ fn page_points(cloud: &PointCloud) -> Vec<usize> {
         .collect();
     let room = MAX_PAGE_POINTS - generated.len();
     let observed: Vec<usize> = (0..cloud.len()).filter(|&i| !is_gen(i)).collect();
-    let step = observed.len().div_ceil(room.max(1)).max(1);
-    let mut keep: Vec<usize> = observed.into_iter().step_by(step).take(room).collect();
+    // Evenly spread: the j-th kept observed point is at j * len / room.
+    let mut keep: Vec<usize> = if observed.len() <= room {
+        observed
+    } else {
+        (0..room)
+            .map(|j| observed[j * observed.len() / room])
+            .collect()
+    };
     keep.extend(generated);
     keep
 }

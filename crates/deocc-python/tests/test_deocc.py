@@ -106,6 +106,12 @@ class Deocc(unittest.TestCase):
         del bad["depth"]
         with self.assertRaisesRegex(ValueError, r'frames\[0\]: missing "depth"'):
             deocc.run([bad], completer="rules")
+        bad = dict(f[0], distortion_model="kb8", D=[0.1, 0.0, 0.0, 0.0])
+        with self.assertRaisesRegex(ValueError, r"frames\[0\]\.camera_info\.d.*unknown distortion"):
+            deocc.run([bad], completer="rules")
+        # A stated lens is taken and removed on arrival.
+        lens = dict(f[0], distortion_model="plumb_bob", D=[-0.05, 0.01, 0.0, 0.0, 0.0])
+        self.assertGreater(len(deocc.run([lens], completer="rules")["points"]), 1000)
         with self.assertRaisesRegex(ValueError, "options_json"):
             deocc.run(f, completer="rules", options={"stpes": 4})
         with self.assertRaisesRegex(ValueError, "completer"):

@@ -287,7 +287,11 @@ async fn play(a: PlayArgs) -> Result<()> {
             rgb: a.topics.rgb.clone(),
             depth: a.topics.depth.clone(),
             info: a.topics.info.clone(),
-            pose: if scene.posed { a.topics.pose.clone() } else { None },
+            pose: if scene.posed {
+                a.topics.pose.clone()
+            } else {
+                None
+            },
         };
         deocc_ros2::bag::write_bag(path, &views, &topics)
             .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
