@@ -31,12 +31,37 @@ pub struct SceneArgs {
     observed: bool,
 }
 
-/// The scene's completed cloud (or observed with `--observed`) with `options`, and its frames'
-/// names and cameras.
+/// Where an instance is in the masks: per view its name, mask pixels and those with depth.
+type MaskPresence = Vec<(String, usize, usize)>;
+
+fn presence(scene: &deocc_pipeline::SceneInput, id: u32) -> MaskPresence {
+    scene
+        .frames
+        .iter()
+        .filter_map(|f| {
+            let m = f.instances.as_ref()?;
+            let (mut px, mut measured) = (0, 0);
+            for (i, &v) in m.ids.iter().enumerate() {
+                if u32::from(v) == id {
+                    px += 1;
+                    measured += usize::from(f.depth.data()[i] > 0.0);
+                }
+            }
+            (px > 0).then(|| (f.name.clone(), px, measured))
+        })
+        .collect()
+}
+
+/// The scene's completed cloud (or observed with `--observed`) with `options`, its frames'
+/// names and cameras, and the scene itself (with the instance maps the run used).
 fn completed(
     a: &SceneArgs,
     options: &PipelineOptions,
-) -> Result<(PointCloud, Vec<(String, Camera)>)> {
+) -> Result<(
+    PointCloud,
+    Vec<(String, Camera)>,
+    deocc_pipeline::SceneInput,
+)> {
     let mut scene = read_scene(&a.scene)?;
     let mut options = options.clone();
     a.depth.apply(&mut options);
@@ -76,6 +101,7 @@ fn completed(
             out.completed
         },
         cameras,
+        scene,
     ))
 }
 
@@ -204,7 +230,7 @@ fn picked_target(
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let options = grasp_options(a.options.as_deref())?;
-    let (cloud, cameras) = completed(&a.scene, &PipelineOptions::default())?;
+    let (cloud, cameras, scene) = completed(&a.scene, &PipelineOptions::default())?;
     let camera = cameras[0].1;
     let (target_id, picked) = picked_target(&a, &cloud, &cameras)?;
     if let Some(how) = &picked {
@@ -218,6 +244,38 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
         .filter(|(_, &i)| i == target_id)
         .map(|(p, _)| *p)
         .collect();
+    let seen = presence(&scene, target_id);
+    if target.is_empty() && !seen.is_empty() {
+        // In the masks but no point at all: the sensor measured no depth on it (a projector's
+        // shadow, a dark or shiny surface) and nothing was completed. An answer, not an error.
+        let views: Vec<String> = seen
+            .iter()
+            .map(|(n, px, d)| format!("{n} ({px} px, {d} with depth)"))
+            .collect();
+        let why = format!(
+            "instance {target_id} is in the masks of {} but has no measured depth there and \
+             nothing was completed for it: there is nothing to grasp (move the camera, or give \
+             its depth)",
+            views.join(", ")
+        );
+        eprintln!("{why}");
+        let answer = serde_json::json!({
+            "target": target_id, "target_picked_by": picked, "target_points": 0,
+            "planner": "antipodal", "grasps": [], "why": why,
+        });
+        let text = serde_json::to_string_pretty(&answer)?;
+        match a.scene.out.as_deref() {
+            None => println!("{text}"),
+            Some(out) => {
+                let staging = Staging::begin(out, Some(&a.scene.scene))?;
+                std::fs::write(staging.dir().join("grasps.json"), text + "\n")
+                    .context("writing grasps.json")?;
+                let dir = staging.commit()?;
+                println!("wrote {}", dir.display());
+            }
+        }
+        return Ok(());
+    }
     if target.is_empty() {
         let mut present: Vec<u32> = ids.iter().copied().filter(|&i| i != 0).collect();
         present.sort_unstable();
@@ -330,7 +388,7 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         (Some(Unseen::AsPoints), _) | (None, false) => UnseenSpace::AsPoints,
     };
     // Thin far sides: what a placement map needs (PipelineOptions::for_placing).
-    let (cloud, cameras) = completed(&a.scene, &PipelineOptions::default().for_placing())?;
+    let (cloud, cameras, _) = completed(&a.scene, &PipelineOptions::default().for_placing())?;
     let (camera, frames) = (cameras[0].1, cameras.len());
     let robot = nalgebra::Point3::from(camera.world_from_camera.translation.vector);
     let placer = GridPlacer {

@@ -257,3 +257,42 @@ fn grasp_takes_the_target_by_pixel_on_the_example() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("\"nope\"") && err.contains("000000"), "{err}");
 }
+
+/// A target in the masks whose depth the sensor never measured (a projector's shadow over all
+/// of it) is answered, not refused: no grasp, and why.
+#[test]
+fn a_target_without_depth_is_answered_with_why() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, target) = pickup_scene(&tmp.path().join("pickup"));
+    let cams: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(scene.join("cameras.json")).unwrap())
+            .unwrap();
+    for f in cams["frames"].as_array().unwrap() {
+        let name = f["name"].as_str().unwrap();
+        let ids = image::open(scene.join(format!("instances/{name}.png")))
+            .unwrap()
+            .into_luma16();
+        let path = scene.join(format!("depth/{name}.png"));
+        let mut depth = image::open(&path).unwrap().into_luma16();
+        for (x, y, p) in depth.enumerate_pixels_mut() {
+            if u64::from(ids.get_pixel(x, y).0[0]) == target {
+                p.0[0] = 0;
+            }
+        }
+        depth.save(&path).unwrap();
+    }
+    let o = deocc()
+        .arg("grasp")
+        .arg(&scene)
+        .args(["--target", &target.to_string(), "--observed"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let answer: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(answer["grasps"].as_array().map(Vec::len), Some(0));
+    let why = answer["why"].as_str().unwrap();
+    assert!(
+        why.contains("no measured depth") && why.contains("nothing to grasp"),
+        "{why}"
+    );
+}
