@@ -100,6 +100,9 @@ pub struct GeometryArgs {
     /// Python interpreter with open3d installed.
     #[arg(long, default_value = "python3")]
     python: String,
+    /// Time our side only (a smoke run on a machine without Open3D; its columns are NaN).
+    #[arg(long)]
+    no_open3d: bool,
 }
 
 #[derive(Args)]
@@ -131,8 +134,9 @@ pub struct ModelArgs {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Geometry(a) => {
+            let python = (!a.no_open3d).then_some(a.python.as_str());
             let report =
-                bench::geometry::geometry_bench(a.points as usize, a.rounds as usize, &a.python)?;
+                bench::geometry::geometry_bench(a.points as usize, a.rounds as usize, python)?;
             crate::report::write_report(&a.json, &report)?;
             let md = report.markdown();
             deocc_io::atomic::write_bytes_atomic(&a.json.with_extension("md"), md.as_bytes())?;

@@ -53,14 +53,15 @@ fn presence(scene: &deocc_pipeline::SceneInput, id: u32) -> MaskPresence {
 }
 
 /// A completed cloud, the frames' names and cameras, and the scene as the run used it.
-type Completed = (PointCloud, Vec<(String, Camera)>, deocc_pipeline::SceneInput);
+type Completed = (
+    PointCloud,
+    Vec<(String, Camera)>,
+    deocc_pipeline::SceneInput,
+);
 
 /// The scene's completed cloud (or observed with `--observed`) with `options`, its frames'
 /// names and cameras, and the scene itself (with the instance maps the run used).
-fn completed(
-    a: &SceneArgs,
-    options: &PipelineOptions,
-) -> Result<Completed> {
+fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<Completed> {
     let mut scene = read_scene(&a.scene)?;
     let mut options = options.clone();
     a.depth.apply(&mut options);

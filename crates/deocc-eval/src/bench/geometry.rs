@@ -38,6 +38,8 @@ pub struct Row {
 
 #[derive(Serialize)]
 pub struct GeometryReport {
+    /// The machine and its load when the figures were taken.
+    pub machine: super::timing::Machine,
     pub points_a: usize,
     pub points_b: usize,
     pub threads: usize,
@@ -175,11 +177,12 @@ fn open3d_round(
     serde_json::from_str(&text).map_err(|e| EvalError::Data(format!("{}: {e}", out.display())))
 }
 
-/// Runs the benchmark: `points` in cloud A (B gets half), `rounds` alternating rounds.
+/// Runs the benchmark: `points` in cloud A (B gets half), `rounds` alternating rounds; without
+/// `python` (a smoke run without the peer) Open3D's columns are NaN.
 pub fn geometry_bench(
     points: usize,
     rounds: usize,
-    python: &str,
+    python: Option<&str>,
 ) -> Result<GeometryReport, EvalError> {
     let tmp = TempDir::new("bench-geometry")?;
     let dir = &tmp.0;
@@ -218,11 +221,10 @@ pub fn geometry_bench(
             write_point_cloud(&path_n, &with_normals, PlyEncoding::BinaryLittleEndian)?;
         }
         ours_rounds.push(ours);
-        o3d_rounds.push(open3d_round(
-            python,
-            &script,
-            [&path_a, &path_b, &path_n, &o3d_json],
-        )?);
+        o3d_rounds.push(match python {
+            Some(python) => open3d_round(python, &script, [&path_a, &path_b, &path_n, &o3d_json])?,
+            None => serde_json::Value::Null,
+        });
     }
     let mut rows = Vec::new();
     for (k, &(name, _, value)) in ours_rounds[0].iter().enumerate() {
@@ -232,9 +234,12 @@ pub fn geometry_bench(
         let mut ov = None;
         for (ours, o3d) in ours_rounds.iter().zip(&o3d_rounds) {
             let entry = &o3d[name];
-            let ot = entry["seconds"]
-                .as_f64()
-                .ok_or_else(|| EvalError::Data(format!("open3d result lacks {name}")))?;
+            let ot = match python {
+                None => f64::NAN,
+                Some(_) => entry["seconds"]
+                    .as_f64()
+                    .ok_or_else(|| EvalError::Data(format!("open3d result lacks {name}")))?,
+            };
             ours_t.push(ours[k].1);
             o3d_t.push(ot);
             ratios.push(ours[k].1 / ot);
@@ -262,13 +267,14 @@ pub fn geometry_bench(
         });
     }
     Ok(GeometryReport {
+        machine: super::timing::Machine::now(),
         points_a: pa.len(),
         points_b: pb.len(),
         threads: rayon::current_num_threads(),
         rounds: ours_rounds.len(),
         open3d_version: o3d_rounds[0]["open3d_version"]
             .as_str()
-            .unwrap_or("?")
+            .unwrap_or(if python.is_some() { "?" } else { "not run" })
             .into(),
         rows,
     })

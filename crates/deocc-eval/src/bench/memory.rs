@@ -22,6 +22,8 @@ pub struct MemoryRow {
 
 #[derive(Debug, Clone, Serialize)]
 pub struct MemoryReport {
+    /// The machine and its load when the figures were taken.
+    pub machine: super::timing::Machine,
     pub completer: String,
     pub rows: Vec<MemoryRow>,
 }
@@ -84,6 +86,7 @@ pub fn memory_bench(
         let _ = std::fs::remove_dir_all(&out);
     }
     Ok(MemoryReport {
+        machine: super::timing::Machine::now(),
         completer: completer.into(),
         rows,
     })

@@ -49,6 +49,8 @@ pub struct ModelRound {
 
 #[derive(Serialize)]
 pub struct ModelReport {
+    /// The machine and its load when the figures were taken.
+    pub machine: super::timing::Machine,
     threads: usize,
     parameters: usize,
     rounds: usize,
@@ -165,8 +167,12 @@ pub fn model_bench(a: &ModelBenchOptions) -> Result<ModelReport, EvalError> {
             let cond = randn((b, r, r, cc), rng, &dev)?;
             let toks = model.encode(&cond)?;
             let noise = randn((b, r, r, tc), rng, &dev)?;
+            // The velocity is the first `tc` output channels; the heads (mask, mean, error)
+            // follow them and are read once, as the completer does.
             euler_sample(&noise, 4, 1.0, |x, t| {
-                model.forward(x, &Tensor::full(t, b, &dev)?, &cond, &toks)
+                model
+                    .forward(x, &Tensor::full(t, b, &dev)?, &cond, &toks)?
+                    .narrow(3, 0, tc)
             })?;
             Ok(())
         })?
@@ -258,6 +264,7 @@ pub fn model_bench(a: &ModelBenchOptions) -> Result<ModelReport, EvalError> {
         scaling[k] = tb / ts;
     }
     let report = ModelReport {
+        machine: super::timing::Machine::now(),
         threads: rayon::current_num_threads(),
         parameters: deocc_model::model::parameter_count(&vm),
         rounds: rounds.len(),

@@ -83,6 +83,8 @@ pub struct Load {
 
 #[derive(Debug, Clone, Serialize)]
 pub struct ServiceReport {
+    /// The machine and its load when the figures were taken.
+    pub machine: super::timing::Machine,
     pub scene: String,
     pub views: usize,
     pub width: u32,
@@ -306,6 +308,7 @@ pub fn service_bench(
         .map(|(t, _)| *t)
         .collect();
     Ok(ServiceReport {
+        machine: super::timing::Machine::now(),
         scene: format!("{} scene 0", preset.name),
         views: scene.frames.len(),
         width: preset.config.width,

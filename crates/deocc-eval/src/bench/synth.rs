@@ -11,6 +11,8 @@ use crate::EvalError;
 
 #[derive(Serialize)]
 pub struct SynthReport {
+    /// The machine and its load when the figures were taken.
+    pub machine: super::timing::Machine,
     threads: usize,
     scenes: usize,
     views: usize,
@@ -124,6 +126,7 @@ pub fn synth_bench(scenes: usize) -> Result<SynthReport, EvalError> {
     let pairs_per_second = pairs as f64 / t0.elapsed().as_secs_f64();
     drop(tmp);
     Ok(SynthReport {
+        machine: super::timing::Machine::now(),
         threads: rayon::current_num_threads(),
         scenes: seeds.len(),
         views,
