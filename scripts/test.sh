@@ -3,6 +3,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo fmt --all -- --check
+# The README's headline figures are generated from bench/*.json, never copied by hand.
+python3 scripts/figures.py --check README.md
 cargo clippy --locked --workspace --all-targets --all-features --release -- -D warnings
 # Layering (ARCHITECTURE.md): the light crates never pull the ML stack, and the product path
 # never depends on the benchmark renderer.
