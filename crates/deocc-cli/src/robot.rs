@@ -206,23 +206,9 @@ fn picked_target(
         .and_then(|c| c.into_iter().find(|f| &f.name == name))
         .map(|f| f.lens.distortion)
         .unwrap_or_default();
-    let k = &camera.intrinsics;
-    let through = |u: f32, v: f32| -> Result<(f32, f32)> {
-        lens.undistort_pixel(k, u as f64, v as f64)
-            .map(|(u, v)| (u as f32, v as f32))
-            .ok_or_else(|| anyhow::anyhow!("{flag} {text}: outside the lens model's range"))
-    };
-    use deocc_robot::target::Pick;
-    pick = match pick {
-        Pick::Pixel { u, v } => {
-            let (u, v) = through(u, v)?;
-            Pick::Pixel { u, v }
-        }
-        Pick::Box { u0, v0, u1, v1 } => {
-            let ((u0, v0), (u1, v1)) = (through(u0, v0)?, through(u1, v1)?);
-            Pick::Box { u0, v0, u1, v1 }
-        }
-    };
+    pick = pick
+        .through_lens(&lens, &camera.intrinsics)
+        .ok_or_else(|| anyhow::anyhow!("{flag} {text}: outside the lens model's range"))?;
     let id = deocc_robot::target::instance_at(cloud, camera, pick)
         .map_err(|e| anyhow::anyhow!("{flag} {text} in frame {name:?}: {e}"))?;
     Ok((id, Some(format!("{flag} {text} in frame {name:?}"))))

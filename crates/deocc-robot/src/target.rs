@@ -47,6 +47,32 @@ impl Pick {
     }
 }
 
+impl Pick {
+    /// The pick in pinhole pixels of a camera with intrinsics `k` whose raw image has lens
+    /// `lens`: the pixels a user picked in the image as the camera gave it, moved through the
+    /// lens. `None` outside the region where the lens model is one-to-one.
+    pub fn through_lens(
+        self,
+        lens: &deocc_geometry::distortion::Distortion,
+        k: &deocc_geometry::camera::Intrinsics,
+    ) -> Option<Pick> {
+        let through = |u: f32, v: f32| {
+            lens.undistort_pixel(k, u as f64, v as f64)
+                .map(|(u, v)| (u as f32, v as f32))
+        };
+        Some(match self {
+            Pick::Pixel { u, v } => {
+                let (u, v) = through(u, v)?;
+                Pick::Pixel { u, v }
+            }
+            Pick::Box { u0, v0, u1, v1 } => {
+                let ((u0, v0), (u1, v1)) = (through(u0, v0)?, through(u1, v1)?);
+                Pick::Box { u0, v0, u1, v1 }
+            }
+        })
+    }
+}
+
 /// Which instance of `cloud` the user pointed at in `camera`'s view; the error says what was
 /// there instead (nothing, background) and where the instances are.
 pub fn instance_at(cloud: &PointCloud, camera: &Camera, pick: Pick) -> Result<u32, String> {

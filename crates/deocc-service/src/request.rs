@@ -469,21 +469,9 @@ pub fn target_pick(
         .collect::<Vec<_>>()
         .join(",");
     let pick = Pick::parse(&text).map_err(|e| bad(format!("{at}.pixel"), e))?;
-    let through = |u: f32, v: f32| {
-        lens.undistort_pixel(&intr, u as f64, v as f64)
-            .map(|(u, v)| (u as f32, v as f32))
-            .ok_or_else(|| bad(format!("{at}.pixel"), "outside the lens model's range"))
-    };
-    let pick = match pick {
-        Pick::Pixel { u, v } => {
-            let (u, v) = through(u, v)?;
-            Pick::Pixel { u, v }
-        }
-        Pick::Box { u0, v0, u1, v1 } => {
-            let ((u0, v0), (u1, v1)) = (through(u0, v0)?, through(u1, v1)?);
-            Pick::Box { u0, v0, u1, v1 }
-        }
-    };
+    let pick = pick
+        .through_lens(&lens, &intr)
+        .ok_or_else(|| bad(format!("{at}.pixel"), "outside the lens model's range"))?;
     Ok((
         Camera {
             intrinsics: intr,
