@@ -23,6 +23,10 @@ for crate in deocc-completion deocc-pipeline deocc-model deocc-robot deocc-servi
   deny "$crate" deocc-synth "the product path must not depend on the benchmark renderer"
 done
 deny deocc-pipeline candle-core "the pipeline talks to completers through deocc-completion, not candle"
+deny deocc-model deocc-pipeline "the model implements the seams (deocc-completion, deocc-io's depth source); the pipeline calls it, never the reverse"
+for crate in deocc-geometry deocc-io deocc-completion deocc-pipeline deocc-model deocc-robot deocc-service deocc-python deocc-ros2; do
+  deny "$crate" deocc-eval "the product path must not depend on the evaluation crate"
+done
 # Two test threads on two cores: candle's and rayon's pools collapse when oversubscribed.
 # --all-features: the ROS 2 bridge (deocc-ros2's `ros2` feature) and its loopback test, which
 # needs a large UDP receive buffer.

@@ -11,7 +11,7 @@
 //! model could reach after the alignment), and any learned source the caller hands in.
 
 use deocc_pipeline::depth::{fill_depth, DepthEstimate, DepthFillOptions, DepthSource};
-use deocc_pipeline::{Frame, PipelineError};
+use deocc_pipeline::Frame;
 use serde::Serialize;
 
 use crate::stats::{estimate, Estimate};
@@ -132,12 +132,17 @@ impl DepthSource for TrueDisparity {
     fn name(&self) -> &str {
         "true_disparity"
     }
-    fn estimate(&self, frame: &Frame) -> Result<Option<DepthEstimate>, PipelineError> {
+    fn estimate(
+        &self,
+        frame: &Frame,
+    ) -> Result<Option<DepthEstimate>, deocc_pipeline::depth::DepthSourceError> {
         let i = self
             .names
             .iter()
             .position(|n| *n == frame.name)
-            .ok_or_else(|| PipelineError::input(&frame.name, "no true depth for this frame"))?;
+            .ok_or_else(|| {
+                deocc_pipeline::depth::DepthSourceError("no true depth for this frame".into())
+            })?;
         Ok(Some(DepthEstimate::Disparity(
             self.truth[i]
                 .iter()

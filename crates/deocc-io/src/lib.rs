@@ -18,6 +18,7 @@
 
 pub mod atomic;
 pub mod cameras;
+pub mod depth_source;
 pub mod error;
 pub mod images;
 pub mod lens;

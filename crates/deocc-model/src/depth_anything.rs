@@ -11,16 +11,15 @@
 //! given zeros.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use candle_core::{DType, Device, Module, Tensor};
 use candle_nn::VarBuilder;
 use candle_transformers::models::depth_anything_v2::{DepthAnythingV2, DepthAnythingV2Config};
 use candle_transformers::models::dinov2::DinoVisionTransformer;
+use deocc_io::depth_source::{DepthEstimate, DepthSource, DepthSourceError};
 use deocc_io::scene::Frame;
-use deocc_pipeline::depth::{DepthEstimate, DepthSource};
-use deocc_pipeline::PipelineError;
 
 use crate::train::{Result, TrainError};
 
@@ -285,13 +284,13 @@ impl DepthSource for DepthAnything {
     fn name(&self) -> &str {
         &self.name
     }
-    fn estimate(&self, frame: &Frame) -> std::result::Result<Option<DepthEstimate>, PipelineError> {
-        let d = self.disparity(&frame.rgb).map_err(|e| {
-            PipelineError::input(
-                PathBuf::from(format!("frame {}", frame.name)),
-                format!("{}: {e}", self.name),
-            )
-        })?;
+    fn estimate(
+        &self,
+        frame: &Frame,
+    ) -> std::result::Result<Option<DepthEstimate>, DepthSourceError> {
+        let d = self
+            .disparity(&frame.rgb)
+            .map_err(|e| DepthSourceError(e.to_string()))?;
         Ok(Some(DepthEstimate::Disparity(d)))
     }
 }

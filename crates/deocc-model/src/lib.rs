@@ -14,7 +14,7 @@
 //! - [`infer`]: loading a trained model and completing crops ([`GlDotCompleter`], one
 //!   implementation of the pipeline's `deocc_completion::Completer` seam);
 //! - [`depth_anything`]: Depth Anything V2 from a user's weights file, a
-//!   `deocc_pipeline::depth::DepthSource` (relative depth from RGB, to fill the sensor's holes).
+//!   `deocc_io::depth_source::DepthSource` (relative depth from RGB, to fill the sensor's holes).
 
 pub mod builtin;
 pub mod chain;

@@ -24,27 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::PipelineError;
 
-/// A depth source's answer for one frame.
-#[derive(Debug, Clone)]
-pub enum DepthEstimate {
-    /// Metric depth (metres, 0 = no estimate), at an unknown scale and shift: fitted to the
-    /// measured pixels.
-    Metric(DepthMap),
-    /// Metric depth made from the frame's own measurements (already at their scale: no fit).
-    SensorScale(DepthMap),
-    /// Relative inverse depth (larger = nearer; 0 or less = no estimate), at an unknown scale and
-    /// shift, row-major, the frame's size.
-    Disparity(Vec<f32>),
-}
-
-/// Where a frame's depth comes from. `estimate` returns `None` to keep the sensor's depth as it
-/// is. Not `Send`: candle-transformers' networks are not, and the stage runs on the caller's
-/// thread.
-pub trait DepthSource {
-    /// A short name for reports (`sensor`, `interpolated`, `depth-anything-v2-small`).
-    fn name(&self) -> &str;
-    fn estimate(&self, frame: &Frame) -> Result<Option<DepthEstimate>, PipelineError>;
-}
+pub use deocc_io::depth_source::{DepthEstimate, DepthSource, DepthSourceError};
 
 /// The default depth source: the sensor's depth as it is.
 #[derive(Debug, Clone, Copy, Default)]
@@ -54,7 +34,7 @@ impl DepthSource for SensorDepth {
     fn name(&self) -> &str {
         "sensor"
     }
-    fn estimate(&self, _frame: &Frame) -> Result<Option<DepthEstimate>, PipelineError> {
+    fn estimate(&self, _frame: &Frame) -> Result<Option<DepthEstimate>, DepthSourceError> {
         Ok(None)
     }
 }
@@ -208,7 +188,7 @@ impl DepthSource for InterpolatedDepth {
     fn name(&self) -> &str {
         "interpolated"
     }
-    fn estimate(&self, frame: &Frame) -> Result<Option<DepthEstimate>, PipelineError> {
+    fn estimate(&self, frame: &Frame) -> Result<Option<DepthEstimate>, DepthSourceError> {
         Ok(Some(DepthEstimate::SensorScale(self.fill(&frame.depth))))
     }
 }
@@ -356,7 +336,13 @@ pub fn fill_depth(
     opts: &DepthFillOptions,
 ) -> Result<Option<DepthFillReport>, PipelineError> {
     opts.validate()?;
-    let Some(estimate) = source.estimate(frame)? else {
+    let estimate = source.estimate(frame).map_err(|e| {
+        PipelineError::input(
+            format!("frame {}", frame.name),
+            format!("{}: {e}", source.name()),
+        )
+    })?;
+    let Some(estimate) = estimate else {
         return Ok(None);
     };
     let (w, h) = (frame.depth.width(), frame.depth.height());
@@ -546,7 +532,7 @@ mod tests {
         fn name(&self) -> &str {
             "affine"
         }
-        fn estimate(&self, _f: &Frame) -> Result<Option<DepthEstimate>, PipelineError> {
+        fn estimate(&self, _f: &Frame) -> Result<Option<DepthEstimate>, DepthSourceError> {
             let d = (0..W * H)
                 .map(|i| {
                     let (u, v) = (i % W, i / W);
@@ -566,7 +552,7 @@ mod tests {
         fn name(&self) -> &str {
             "noise"
         }
-        fn estimate(&self, _f: &Frame) -> Result<Option<DepthEstimate>, PipelineError> {
+        fn estimate(&self, _f: &Frame) -> Result<Option<DepthEstimate>, DepthSourceError> {
             let d = (0..W * H)
                 .map(|i| 1.0 + ((i * 2_654_435_761) % 1000) as f32 / 100.0)
                 .collect();
@@ -728,7 +714,7 @@ mod tests {
             fn name(&self) -> &str {
                 "small"
             }
-            fn estimate(&self, _f: &Frame) -> Result<Option<DepthEstimate>, PipelineError> {
+            fn estimate(&self, _f: &Frame) -> Result<Option<DepthEstimate>, DepthSourceError> {
                 Ok(Some(DepthEstimate::Metric(DepthMap::zeros(10, 10))))
             }
         }
