@@ -162,7 +162,11 @@ pub fn run_prepared(
     Ok(out)
 }
 
-/// [`run`], telling `observer` of each stage; it may stop the run between stages.
+/// [`run`], telling `observer` of each stage; it may stop the run between stages. The stages, in
+/// order, each one function in the file named for it: depth filling (`depth.rs`, when the
+/// options ask), reconstruction, occlusion and the instances to complete, view selection,
+/// completion, the plane fill, fusion of the completions, the support, revolve and cuboid
+/// stages, carving, fusion into the cloud, and the report.
 pub fn run_observed(
     scene: &SceneInput,
     chain: &CompleterChain,
@@ -173,31 +177,9 @@ pub fn run_observed(
     opts.validate()?;
     let t_all = Instant::now();
     let mut timings = StageTimings::default();
-    // The depth the sensor did not measure, filled first when the options ask for it (on a copy:
-    // the caller's frames stay as they were read).
-    let filled_scene;
-    let mut depth_fill = Vec::new();
-    let scene = if opts.fill_depth_max_gap_px > 0 {
-        let mut s = scene.clone();
-        let source = depth::InterpolatedDepth {
-            max_gap_px: opts.fill_depth_max_gap_px,
-            ..Default::default()
-        };
-        depth_fill = depth::fill_scene_depth(&mut s, &source, &depth::DepthFillOptions::default())?;
-        filled_scene = s;
-        &filled_scene
-    } else {
-        scene
-    };
-    if scene.frames.iter().any(|f| f.instances.is_none()) {
-        return Err(PipelineError::input(
-            scene.dir.join("instances"),
-            "every frame needs an instance map (instances/NAME.png), or call \
-             instances::ensure_instances() to segment it",
-        ));
-    }
-
-    check_scene_extent(scene, opts.max_scene_radius_m)?;
+    let (filled, depth_fill) = fill_depth_first(scene, opts)?;
+    let scene = filled.as_ref().unwrap_or(scene);
+    check_input(scene, opts)?;
     enter(observer, 0)?;
     let t = Instant::now();
     let observed = reconstruct::reconstruct(scene, opts.observed_voxel_m)?;
@@ -205,6 +187,124 @@ pub fn run_observed(
     enter(observer, 1)?;
 
     let t = Instant::now();
+    let (occlusion, found, popts, to_complete) = occlusion_and_targets(scene, opts);
+    timings.occlusion_s = t.elapsed().as_secs_f64();
+    enter(observer, 2)?;
+
+    let t = Instant::now();
+    let stats: Vec<_> = scene.frames.iter().map(stats::view_stats).collect();
+    let selected = views::select_all(scene, &stats, &to_complete, opts);
+    timings.select_views_s = t.elapsed().as_secs_f64();
+    enter(observer, 3)?;
+
+    let t = Instant::now();
+    let (completed_crops, declined) =
+        complete::complete_instances(scene, &stats, &selected, chain, opts, observer)?;
+    timings.complete_s = t.elapsed().as_secs_f64();
+    enter(observer, 4)?;
+
+    // The plane fill first: the support and revolve stages stand objects on it; it joins last.
+    let t = Instant::now();
+    let fill = planes::plane_fill(scene, opts.complete_planes, found.as_ref(), &popts);
+    timings.planes_s = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let (generated, records) = fuse_completions(scene, chain, opts, &completed_crops, &declined);
+    let run = (scene, opts, registration);
+    let shaped = shape_stages(run, &observed, &fill, &selected, &records, generated);
+    let (generated, points_carved) = carve_stage(shaped.generated, found.as_ref(), scene, opts);
+    let completed = fuse_generated(&observed, &generated, opts.fusion_voxel_m)?;
+    timings.fuse_s = t.elapsed().as_secs_f64();
+    enter(observer, 5)?;
+
+    let t = Instant::now();
+    let completed = join_plane_fill(completed, &fill, opts)?;
+    timings.planes_s += t.elapsed().as_secs_f64();
+    enter(observer, 6)?;
+    timings.total_s = t_all.elapsed().as_secs_f64();
+
+    let mut report = make_report(
+        scene,
+        chain,
+        opts,
+        occlusion,
+        &selected,
+        records,
+        &observed,
+        &completed,
+        points_carved,
+        declined.len(),
+        timings,
+        registration,
+        &shaped.revolved,
+        &shaped.boxed,
+    );
+    report.depth_fill = depth_fill;
+    Ok(PipelineOutput {
+        observed,
+        completed,
+        report,
+    })
+}
+
+/// Every frame has an instance map (given, or made by `instances::ensure_instances`), and every
+/// camera lies within the options' scene radius.
+fn check_input(scene: &SceneInput, opts: &PipelineOptions) -> Result<(), PipelineError> {
+    if scene.frames.iter().any(|f| f.instances.is_none()) {
+        return Err(PipelineError::input(
+            scene.dir.join("instances"),
+            "every frame needs an instance map (instances/NAME.png), or call \
+             instances::ensure_instances() to segment it",
+        ));
+    }
+    check_scene_extent(scene, opts.max_scene_radius_m)
+}
+
+/// Stage 6: the plane fill joins the cloud (when the options ask), after every other stage has
+/// used it.
+fn join_plane_fill(
+    completed: PointCloud,
+    fill: &PointCloud,
+    opts: &PipelineOptions,
+) -> Result<PointCloud, PipelineError> {
+    if !opts.complete_planes {
+        return Ok(completed);
+    }
+    Ok(fuse_generated(&completed, fill, opts.fusion_voxel_m)?)
+}
+
+/// Stage 0: the depth the sensor did not measure, filled first when the options ask for it (on
+/// a copy: the caller's frames stay as they were read).
+fn fill_depth_first(
+    scene: &SceneInput,
+    opts: &PipelineOptions,
+) -> Result<(Option<SceneInput>, Vec<depth::DepthFillReport>), PipelineError> {
+    if opts.fill_depth_max_gap_px == 0 {
+        return Ok((None, Vec::new()));
+    }
+    let mut s = scene.clone();
+    let source = depth::InterpolatedDepth {
+        max_gap_px: opts.fill_depth_max_gap_px,
+        ..Default::default()
+    };
+    let report = depth::fill_scene_depth(&mut s, &source, &depth::DepthFillOptions::default())?;
+    Ok((Some(s), report))
+}
+
+/// What the occlusion stage hands on: each view's masks with their occlusion, the scene's
+/// planes (when a later stage needs them) and their options, and the instances to complete with
+/// their candidate views.
+type Targets = (
+    Vec<Vec<MaskOcclusion>>,
+    Option<planes::ScenePlanes>,
+    planes::PlaneOptions,
+    BTreeMap<u16, Vec<(usize, usize)>>,
+);
+
+/// Stage 2: occlusion per view, and which instances to complete. Instances lying in the scene's
+/// bounding planes (the floor, the walls, and the pieces a segmenter cut them into) are not
+/// completed: the plane fill is their completion.
+fn occlusion_and_targets(scene: &SceneInput, opts: &PipelineOptions) -> Targets {
     let occlusion: Vec<Vec<MaskOcclusion>> = scene
         .frames
         .iter()
@@ -215,8 +315,6 @@ pub fn run_observed(
                 .unwrap_or_default()
         })
         .collect();
-    // Instances lying in the scene's bounding planes (the floor, the walls, and the pieces a
-    // segmenter cut them into) are not completed: the plane fill is their completion.
     let popts = planes::PlaneOptions {
         min_rectangularity: opts.plane_min_rectangularity,
         ..planes::PlaneOptions::default()
@@ -231,40 +329,23 @@ pub fn run_observed(
     }
     let to_complete =
         occlusion::instances_to_complete(&occlusion, &not_completed, opts.complete_unoccluded);
-    timings.occlusion_s = t.elapsed().as_secs_f64();
-    enter(observer, 2)?;
+    (occlusion, found, popts, to_complete)
+}
 
-    let t = Instant::now();
-    let stats: Vec<_> = scene.frames.iter().map(stats::view_stats).collect();
-    let selected: BTreeMap<u16, Vec<usize>> = to_complete
-        .iter()
-        .map(|(&id, c)| (id, views::select_views(scene, &stats, id, c, opts)))
-        .collect();
-    timings.select_views_s = t.elapsed().as_secs_f64();
-    enter(observer, 3)?;
-
-    let t = Instant::now();
-    let (completed_crops, declined) =
-        complete::complete_instances(scene, &stats, &selected, chain, opts, observer)?;
-    timings.complete_s = t.elapsed().as_secs_f64();
-    enter(observer, 4)?;
-
-    // The support planes' hidden parts first: the support and revolve stages stand objects on
-    // them; they join the cloud last (stage 6).
-    let t = Instant::now();
-    let fill = if let (true, Some(found)) = (opts.complete_planes, &found) {
-        planes::complete_found_planes(scene, found, &popts)
-            .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE)
-    } else {
-        PointCloud::default()
-    };
-    timings.planes_s = t.elapsed().as_secs_f64();
-
-    let t = Instant::now();
+/// Stage 5a: each completed crop fused into generated points at the observed scale, with the
+/// settings of the completer that made it, the rules' fallback where the model expected to be
+/// off, and the quality gate; a record for every crop, declined ones included.
+fn fuse_completions(
+    scene: &SceneInput,
+    chain: &CompleterChain,
+    opts: &PipelineOptions,
+    completed_crops: &[complete::CompletedCrop],
+    declined: &[complete::DeclinedCrop],
+) -> (PointCloud, Vec<CompletionRecord>) {
     let mut generated = PointCloud::default();
     let mut records = Vec::new();
     let projectors: Vec<_> = scene.frames.iter().map(|f| f.camera.projector()).collect();
-    for c in &completed_crops {
+    for c in completed_crops {
         let link = &chain.links()[c.completer];
         let (mut cloud, mut rec, left_out) = fuse::fuse_completion_detailed(
             &c.window,
@@ -358,7 +439,7 @@ pub fn run_observed(
             records.push(extra_rec);
         }
     }
-    for d in &declined {
+    for d in declined {
         records.push(CompletionRecord {
             instance_id: d.instance_id,
             view: d.view,
@@ -378,11 +459,32 @@ pub fn run_observed(
             reason: format!("declined: {}", d.reasons.join("; ")),
         });
     }
+    (generated, records)
+}
+
+/// What the support, revolve and cuboid stages made.
+struct Shaped {
+    generated: PointCloud,
+    revolved: Vec<revolve::RevolveRecord>,
+    boxed: Vec<cuboid::CuboidRecord>,
+}
+
+/// Stages 5b-d (posed scenes, z up): hidden bottoms extended to the support below, upright
+/// solids of revolution and boxes fitted in place of their completions, standing on what the
+/// views and the plane fill show.
+fn shape_stages(
+    (scene, opts, registration): (&SceneInput, &PipelineOptions, &Registration),
+    observed: &PointCloud,
+    fill: &PointCloud,
+    selected: &BTreeMap<u16, Vec<usize>>,
+    records: &[CompletionRecord],
+    mut generated: PointCloud,
+) -> Shaped {
     if opts.extend_to_support && scene.posed && registration.is_empty() {
         let ids: BTreeSet<u16> = selected.keys().copied().collect();
         let mut both = observed.clone();
         both.append(&generated);
-        both.append(&fill);
+        both.append(fill);
         let extension = support::extend_to_support(
             &both,
             &ids,
@@ -396,7 +498,7 @@ pub fn run_observed(
     // The revolve and cuboid stages stand objects on what the views and the planes' fill show.
     let upright = scene.posed && registration.is_empty();
     let ground = if upright && (opts.revolve_upright || opts.cuboid_upright) {
-        support::Ground::new(&observed, &fill, opts.up.into())
+        support::Ground::new(observed, fill, opts.up.into())
     } else {
         None
     };
@@ -409,7 +511,7 @@ pub fn run_observed(
     let mut revolved = Vec::new();
     if let Some(ground) = ground.as_ref().filter(|_| opts.revolve_upright) {
         (generated, revolved) = revolve::revolve_instances(
-            &observed,
+            observed,
             &generated,
             ground,
             &ids,
@@ -437,15 +539,30 @@ pub fn run_observed(
                 .any(|r| r.instance_id == id && r.fit.is_some())
         });
         (generated, boxed) = cuboid::cuboid_instances(
-            &observed,
+            observed,
             &generated,
             ground,
             &ids,
             &cuboid::CuboidOptions::default(),
         );
     }
+    Shaped {
+        generated,
+        revolved,
+        boxed,
+    }
+}
+
+/// Stage 5e: generated points under the floor or behind a wall, and (when the options ask)
+/// where a view saw through them, left out; how many went.
+fn carve_stage(
+    mut generated: PointCloud,
+    found: Option<&planes::ScenePlanes>,
+    scene: &SceneInput,
+    opts: &PipelineOptions,
+) -> (PointCloud, usize) {
     let mut points_carved = 0;
-    if let (true, Some(found)) = (opts.carve_outside_bounding_planes_m > 0.0, &found) {
+    if let (true, Some(found)) = (opts.carve_outside_bounding_planes_m > 0.0, found) {
         (generated, points_carved) = planes::keep_inside(
             &generated,
             &found.bounding,
@@ -457,40 +574,7 @@ pub fn run_observed(
         (generated, carved) = carve::keep_hidden(&generated, scene);
         points_carved += carved;
     }
-    let mut completed = fuse_generated(&observed, &generated, opts.fusion_voxel_m)?;
-    timings.fuse_s = t.elapsed().as_secs_f64();
-    enter(observer, 5)?;
-
-    let t = Instant::now();
-    if opts.complete_planes {
-        completed = fuse_generated(&completed, &fill, opts.fusion_voxel_m)?;
-    }
-    timings.planes_s += t.elapsed().as_secs_f64();
-    enter(observer, 6)?;
-    timings.total_s = t_all.elapsed().as_secs_f64();
-
-    let mut report = make_report(
-        scene,
-        chain,
-        opts,
-        occlusion,
-        &selected,
-        records,
-        &observed,
-        &completed,
-        points_carved,
-        declined.len(),
-        timings,
-        registration,
-        &revolved,
-        &boxed,
-    );
-    report.depth_fill = depth_fill;
-    Ok(PipelineOutput {
-        observed,
-        completed,
-        report,
-    })
+    (generated, points_carved)
 }
 
 /// Every camera within `radius_m` of the cameras' median position, or an error naming the frame.

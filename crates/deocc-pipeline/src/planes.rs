@@ -535,6 +535,21 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
     complete_found_planes(scene, &ScenePlanes::find(scene, opts), opts)
 }
 
+/// The plane fill of a run (stage 4b): the hidden parts of the planes found, as plane-fill
+/// points with the fill's confidence; nothing when `enabled` is off or no planes were found.
+pub fn plane_fill(
+    scene: &SceneInput,
+    enabled: bool,
+    found: Option<&ScenePlanes>,
+    opts: &PlaneOptions,
+) -> PointCloud {
+    match found {
+        Some(found) if enabled => complete_found_planes(scene, found, opts)
+            .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE),
+        _ => PointCloud::default(),
+    }
+}
+
 /// [`complete_planes`] on planes already found.
 pub fn complete_found_planes(
     scene: &SceneInput,

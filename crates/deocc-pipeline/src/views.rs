@@ -39,3 +39,16 @@ pub fn select_views(
     }
     chosen.into_iter().map(|(v, _)| v).collect()
 }
+
+/// The views to complete each instance in, from its candidate views (view, visible pixels).
+pub fn select_all(
+    scene: &SceneInput,
+    stats: &[BTreeMap<u16, InstanceStats>],
+    candidates: &BTreeMap<u16, Vec<(usize, usize)>>,
+    opts: &PipelineOptions,
+) -> BTreeMap<u16, Vec<usize>> {
+    candidates
+        .iter()
+        .map(|(&id, c)| (id, select_views(scene, stats, id, c, opts)))
+        .collect()
+}
