@@ -373,15 +373,45 @@ fn to_ids(img: &Img) -> Result<InstanceMap, String> {
     })
 }
 
-/// Reads a recording into a scene (see the module documentation).
-pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, PipelineError> {
-    let bad = |msg: String| PipelineError::input(path, msg);
-    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-    // Topics first, to choose defaults and to name them in errors.
+/// The topic patterns a recording is read with.
+struct Patterns {
+    rgb: String,
+    depth: String,
+    info: String,
+    inst: String,
+}
+
+/// The messages of a recording, by pattern capture.
+#[derive(Default)]
+struct Messages {
+    rgb: Vec<(String, Img)>,
+    depth: BTreeMap<String, Vec<Img>>,
+    inst: BTreeMap<String, Vec<Img>>,
+    info: BTreeMap<String, Info>,
+    tf: BTreeMap<String, Vec<(i64, Isometry3<f32>)>>,
+    pose_topic: Option<String>,
+    pose_msgs: Vec<(i64, Isometry3<f32>)>,
+}
+
+/// One colour image with the depth (and instance map) it pairs with, and its pose.
+struct Candidate<'a> {
+    key: &'a str,
+    rgb: &'a Img,
+    depth: &'a Img,
+    inst: Option<&'a Img>,
+    pose: Option<Isometry3<f32>>,
+}
+
+/// The file's topics and deocc's scene metadata, read before the messages to choose defaults
+/// and to name the topics in errors.
+fn scan(
+    bytes: &[u8],
+    bad: &dyn Fn(String) -> PipelineError,
+) -> Result<(BTreeSet<String>, BTreeMap<String, String>), PipelineError> {
     let mut topics = BTreeSet::new();
     let mut meta = BTreeMap::new();
-    for rec in mcap::read::ChunkFlattener::new(&bytes)
-        .map_err(|e| bad(format!("not an MCAP file: {e}")))?
+    for rec in
+        mcap::read::ChunkFlattener::new(bytes).map_err(|e| bad(format!("not an MCAP file: {e}")))?
     {
         match rec.map_err(|e| bad(format!("reading the MCAP file: {e}")))? {
             mcap::records::Record::Channel(c) => {
@@ -391,10 +421,21 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             _ => {}
         }
     }
-    let listing = || {
-        let t: Vec<&str> = topics.iter().map(String::as_str).collect();
-        format!("the file's topics: {}", t.join(", "))
-    };
+    Ok((topics, meta))
+}
+
+fn listing(topics: &BTreeSet<String>) -> String {
+    let t: Vec<&str> = topics.iter().map(String::as_str).collect();
+    format!("the file's topics: {}", t.join(", "))
+}
+
+/// The patterns given, or the defaults the file's topics allow; each must match a topic.
+fn patterns(
+    opts: &RecordingOptions,
+    topics: &BTreeSet<String>,
+    bad: &dyn Fn(String) -> PipelineError,
+) -> Result<Patterns, PipelineError> {
+    let listing = || listing(topics);
     let rgb_pat = match &opts.rgb {
         Some(t) => t.clone(),
         None if topics
@@ -431,7 +472,23 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             return Err(bad(format!("{what} {pat:?}: no such topic; {}", listing())));
         }
     }
-    // Messages.
+    Ok(Patterns {
+        rgb: rgb_pat,
+        depth: depth_pat,
+        info: info_pat,
+        inst: inst_pat,
+    })
+}
+
+/// Every message the patterns, `/tf` and the pose topic select, decoded.
+fn collect(
+    bytes: &[u8],
+    p: &Patterns,
+    opts: &RecordingOptions,
+    topics: &BTreeSet<String>,
+    bad: &dyn Fn(String) -> PipelineError,
+) -> Result<Messages, PipelineError> {
+    let (rgb_pat, depth_pat, inst_pat, info_pat) = (&p.rgb, &p.depth, &p.inst, &p.info);
     let mut rgb: Vec<(String, Img)> = Vec::new();
     let mut depth: BTreeMap<String, Vec<Img>> = BTreeMap::new();
     let mut inst: BTreeMap<String, Vec<Img>> = BTreeMap::new();
@@ -439,7 +496,7 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
     let mut tf: BTreeMap<String, Vec<(i64, Isometry3<f32>)>> = BTreeMap::new();
     let pose_topic = opts.poses.as_ref().filter(|p| topics.contains(*p)).cloned();
     let mut pose_msgs: Vec<(i64, Isometry3<f32>)> = Vec::new();
-    for m in mcap::MessageStream::new(&bytes).map_err(|e| bad(format!("not an MCAP file: {e}")))? {
+    for m in mcap::MessageStream::new(bytes).map_err(|e| bad(format!("not an MCAP file: {e}")))? {
         let m = m.map_err(|e| bad(format!("reading the MCAP file: {e}")))?;
         let topic = &m.channel.topic;
         let cdr = match m.channel.message_encoding.as_str() {
@@ -462,13 +519,13 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             if cdr {
                 pose_msgs.push(cdr_pose(&m.data).map_err(at)?);
             }
-        } else if let Some(k) = capture(&rgb_pat, topic) {
+        } else if let Some(k) = capture(rgb_pat, topic) {
             rgb.push((k, image().map_err(at)?));
-        } else if let Some(k) = capture(&depth_pat, topic) {
+        } else if let Some(k) = capture(depth_pat, topic) {
             depth.entry(k).or_default().push(image().map_err(at)?);
-        } else if let Some(k) = capture(&inst_pat, topic) {
+        } else if let Some(k) = capture(inst_pat, topic) {
             inst.entry(k).or_default().push(image().map_err(at)?);
-        } else if let Some(k) = capture(&info_pat, topic) {
+        } else if let Some(k) = capture(info_pat, topic) {
             let i = if cdr {
                 cdr_info(&m.data)
             } else {
@@ -486,16 +543,101 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             }
         }
     }
-    if rgb.is_empty() {
+    Ok(Messages {
+        rgb,
+        depth,
+        inst,
+        info,
+        tf,
+        pose_topic,
+        pose_msgs,
+    })
+}
+
+/// One chosen candidate as a checked pinhole frame named `name`.
+fn to_frame(
+    c: &Candidate,
+    name: String,
+    posed: bool,
+    m: &Messages,
+    p: &Patterns,
+    bad: &dyn Fn(String) -> PipelineError,
+) -> Result<Frame, PipelineError> {
+    let (rgb_pat, info_pat, info) = (&p.rgb, &p.info, &m.info);
+    let at = |e: String| bad(format!("{rgb_pat} at {} ns: {e}", c.rgb.stamp));
+    let inf = info
+        .get(c.key)
+        .ok_or_else(|| at(format!("no calibration on {info_pat:?} for this camera")))?;
+    if (inf.width, inf.height) != (c.rgb.width, c.rgb.height) {
+        return Err(at(format!(
+            "calibration is {}x{} but the image is {}x{}",
+            inf.width, inf.height, c.rgb.width, c.rgb.height
+        )));
+    }
+    let k = &inf.k;
+    let intr = Intrinsics::new(
+        k[0] as f32,
+        k[4] as f32,
+        k[2] as f32,
+        k[5] as f32,
+        inf.width,
+        inf.height,
+    )
+    .and_then(|i| i.check_plausible().map(|_| i))
+    .map_err(|e| at(e.to_string()))?;
+    let lens = Lens {
+        distortion: Distortion::from_ros(&inf.model, &inf.d).map_err(at)?,
+        ..Default::default()
+    };
+    let rgb_img = to_rgb(c.rgb).map_err(at)?;
+    let d = to_depth(c.depth).map_err(at)?;
+    if (d.width(), d.height()) != (intr.width(), intr.height()) {
+        return Err(at(format!(
+            "depth is {}x{}, colour {}x{}: depth must be registered to colour",
+            d.width(),
+            d.height(),
+            intr.width(),
+            intr.height()
+        )));
+    }
+    let ids = c.inst.map(to_ids).transpose().map_err(at)?;
+    let (rgb_img, d, ids) = deocc_io::lens::to_pinhole(rgb_img, d, ids, &intr, &lens);
+    Ok(Frame {
+        name,
+        camera: Camera {
+            intrinsics: intr,
+            world_from_camera: if posed {
+                c.pose.expect("posed")
+            } else {
+                Isometry3::identity()
+            },
+        },
+        rgb: rgb_img,
+        depth: d,
+        instances: ids,
+    })
+}
+
+/// Reads a recording into a scene (see the module documentation).
+pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, PipelineError> {
+    let bad = |msg: String| PipelineError::input(path, msg);
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let (topics, meta) = scan(&bytes, &bad)?;
+    let p = patterns(opts, &topics, &bad)?;
+    let mut m = collect(&bytes, &p, opts, &topics, &bad)?;
+    let (rgb_pat, depth_pat) = (&p.rgb, &p.depth);
+    if m.rgb.is_empty() {
         return Err(bad(format!("no colour image on {rgb_pat:?}")));
     }
-    rgb.sort_by(|a, b| a.1.stamp.cmp(&b.1.stamp).then(a.0.cmp(&b.0)));
+    m.rgb
+        .sort_by(|a, b| a.1.stamp.cmp(&b.1.stamp).then(a.0.cmp(&b.0)));
     let gap = (MAX_PAIR_GAP_S * 1e9) as i64;
     let nearest = |list: &[Img], t: i64| -> Option<usize> {
         (0..list.len())
             .min_by_key(|&i| (list[i].stamp - t).abs())
             .filter(|&i| (list[i].stamp - t).abs() <= gap)
     };
+    let (tf, pose_topic, pose_msgs) = (&m.tf, &m.pose_topic, &m.pose_msgs);
     let pose_of = |frame: &str, t: i64| -> Option<Isometry3<f32>> {
         if pose_topic.is_some() {
             return pose_msgs
@@ -508,9 +650,10 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
         let list = tf.get(child)?;
         list.iter()
             .min_by_key(|(s, _)| (s - t).abs())
-            .filter(|(s, _)| (s - t).abs() <= gap || tf.get(child).is_some_and(|l| l.len() == 1))
+            .filter(|(s, _)| (s - t).abs() <= gap || list.len() == 1)
             .map(|(_, p)| *p)
     };
+    let listing = || listing(&topics);
     if let Some(f) = &opts.poses {
         if pose_topic.is_none() && !tf.contains_key(f) {
             let have: Vec<&String> = tf.keys().collect();
@@ -526,17 +669,10 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             )));
         }
     }
-    struct Candidate<'a> {
-        key: &'a str,
-        rgb: &'a Img,
-        depth: &'a Img,
-        inst: Option<&'a Img>,
-        pose: Option<Isometry3<f32>>,
-    }
     let mut cands = Vec::new();
     let mut unpaired = 0;
-    for (key, img) in &rgb {
-        let Some(ds) = depth.get(key) else {
+    for (key, img) in &m.rgb {
+        let Some(ds) = m.depth.get(key) else {
             unpaired += 1;
             continue;
         };
@@ -544,7 +680,8 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
             unpaired += 1;
             continue;
         };
-        let inst = inst
+        let inst = m
+            .inst
             .get(key)
             .and_then(|l| nearest(l, img.stamp).map(|i| &l[i]));
         cands.push(Candidate {
@@ -568,49 +705,11 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
         .iter()
         .map(|c| if posed { c.pose } else { None })
         .collect();
-    let chosen = opts.pick.pick(cands.len(), &poses);
-    let mut frames = Vec::with_capacity(chosen.len());
+    let mut frames = Vec::new();
     let mut names = BTreeSet::new();
-    for (n, &i) in chosen.iter().enumerate() {
+    for (n, &i) in opts.pick.pick(cands.len(), &poses).iter().enumerate() {
         let c = &cands[i];
-        let at = |e: String| bad(format!("{rgb_pat} at {} ns: {e}", c.rgb.stamp));
-        let inf = info
-            .get(c.key)
-            .ok_or_else(|| at(format!("no calibration on {info_pat:?} for this camera")))?;
-        if (inf.width, inf.height) != (c.rgb.width, c.rgb.height) {
-            return Err(at(format!(
-                "calibration is {}x{} but the image is {}x{}",
-                inf.width, inf.height, c.rgb.width, c.rgb.height
-            )));
-        }
-        let k = &inf.k;
-        let intr = Intrinsics::new(
-            k[0] as f32,
-            k[4] as f32,
-            k[2] as f32,
-            k[5] as f32,
-            inf.width,
-            inf.height,
-        )
-        .and_then(|i| i.check_plausible().map(|_| i))
-        .map_err(|e| at(e.to_string()))?;
-        let lens = Lens {
-            distortion: Distortion::from_ros(&inf.model, &inf.d).map_err(at)?,
-            ..Default::default()
-        };
-        let rgb_img = to_rgb(c.rgb).map_err(at)?;
-        let d = to_depth(c.depth).map_err(at)?;
-        if (d.width(), d.height()) != (intr.width(), intr.height()) {
-            return Err(at(format!(
-                "depth is {}x{}, colour {}x{}: depth must be registered to colour",
-                d.width(),
-                d.height(),
-                intr.width(),
-                intr.height()
-            )));
-        }
-        let ids = c.inst.map(to_ids).transpose().map_err(at)?;
-        let (rgb_img, d, ids) = deocc_io::lens::to_pinhole(rgb_img, d, ids, &intr, &lens);
+        // A capture that is a plain, unused file name names the frame (`run --mcap`'s own).
         let name = if deocc_io::scene::check_frame_name(c.key).is_ok()
             && names.insert(c.key.to_string())
         {
@@ -618,20 +717,7 @@ pub fn read_mcap(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pip
         } else {
             format!("{n:06}")
         };
-        frames.push(Frame {
-            name,
-            camera: Camera {
-                intrinsics: intr,
-                world_from_camera: if posed {
-                    c.pose.expect("posed")
-                } else {
-                    Isometry3::identity()
-                },
-            },
-            rgb: rgb_img,
-            depth: d,
-            instances: ids,
-        });
+        frames.push(to_frame(c, name, posed, &m, &p, &bad)?);
     }
     let structure_ids = meta
         .get("structure_ids")
