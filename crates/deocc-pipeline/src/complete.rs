@@ -68,16 +68,22 @@ pub struct DeclinedCrop {
     pub reasons: Vec<String>,
 }
 
-/// Crops and completes every selected (instance, view); returns the completions in (instance,
-/// selected view) order and the crops no completer took.
-pub fn complete_instances(
+/// Crops to complete: for each selected (instance, view), the crop of the first link of the
+/// chain that takes it (its index), with what the other views saw of the instance in front of
+/// and behind it; and the crops no link takes.
+type Crops = (
+    Vec<(usize, CropWindow, CropCondition)>,
+    Vec<Option<Vec<f32>>>,
+    Vec<DeclinedCrop>,
+);
+
+fn build_crops(
     scene: &SceneInput,
     stats: &[BTreeMap<u16, InstanceStats>],
     selected: &BTreeMap<u16, Vec<usize>>,
     chain: &CompleterChain,
     opts: &PipelineOptions,
-    observer: &dyn crate::Observer,
-) -> Result<(Vec<CompletedCrop>, Vec<DeclinedCrop>), PipelineError> {
+) -> Crops {
     let mut jobs: Vec<(usize, CropWindow, CropCondition)> = Vec::new();
     let mut behind: Vec<Option<Vec<f32>>> = Vec::new();
     let mut declined = Vec::new();
@@ -129,6 +135,20 @@ pub fn complete_instances(
             }
         }
     }
+    (jobs, behind, declined)
+}
+
+/// Crops and completes every selected (instance, view); returns the completions in (instance,
+/// selected view) order and the crops no completer took.
+pub fn complete_instances(
+    scene: &SceneInput,
+    stats: &[BTreeMap<u16, InstanceStats>],
+    selected: &BTreeMap<u16, Vec<usize>>,
+    chain: &CompleterChain,
+    opts: &PipelineOptions,
+    observer: &dyn crate::Observer,
+) -> Result<(Vec<CompletedCrop>, Vec<DeclinedCrop>), PipelineError> {
+    let (jobs, behind, declined) = build_crops(scene, stats, selected, chain, opts);
     let sampling = CompletionOptions {
         steps: opts.steps,
         rho: opts.rho,

@@ -208,42 +208,13 @@ pub fn fuse_completion_detailed(
         })
     };
     let amodal_px = completion.amodal.iter().filter(|&&a| a).count();
-    let mut record = CompletionRecord {
-        instance_id: window.instance_id,
-        view: window.view,
-        completer: completer.to_string(),
-        visible_px: vis.len(),
-        amodal_px,
-        new_points: 0,
-        metric_scale_m: window.metric_scale_m,
-        fit: None,
-        mean_confidence: None,
-        seen_through_fraction: None,
-        gated: false,
-        spread_dropped: 0,
-        uncertain_dropped: 0,
-        far_side_observed: 0,
-        accepted: false,
-        reason: String::new(),
-    };
-    let x: Vec<f32> = vis.iter().map(|&k| completion.depth[k]).collect();
-    let y: Vec<f32> = vis.iter().map(|&k| window.observed_depth_m[k]).collect();
-    let fit = match huber_affine_fit(&x, &y, &HuberOptions::default()) {
-        Ok(f) => f,
-        Err(e) => {
-            record.reason = format!("depth fit failed: {e}");
-            return (PointCloud::default(), record, left_out);
-        }
-    };
-    record.fit = Some(fit);
-    // A poor fit would put generated geometry at the wrong depth: reject rather than pollute.
-    if fit.alpha <= 0.0 || fit.inlier_fraction < MIN_FIT_INLIERS || fit.scale > MAX_FIT_RESIDUAL_M {
-        record.reason = format!(
-            "poor depth fit (alpha {:.3}, inliers {:.2}, residual scale {:.3} m)",
-            fit.alpha, fit.inlier_fraction, fit.scale
-        );
+    let mut record = new_record(window, completer, vis.len(), amodal_px);
+    let (fit, why) = fit_to_observed(&vis, completion, window);
+    record.fit = fit;
+    let Some(fit) = fit.filter(|_| why.is_none()) else {
+        record.reason = why.unwrap_or_default();
         return (PointCloud::default(), record, left_out);
-    }
+    };
     let r = window.resolution;
     let near_depth = median_within(&completion.depth, &completion.amodal, r, opts.median_px);
     let back_depth = median_within(
@@ -274,38 +245,11 @@ pub fn fuse_completion_detailed(
         })
     };
     let mut uncertain_dropped = 0;
-    let max_thick = if opts.max_thickness_m > 0.0 {
-        opts.max_thickness_m
-    } else {
-        f32::INFINITY
-    };
-    let run_cap: Option<Vec<f32>> = (opts.max_thickness_per_width > 0.0).then(|| {
-        row_run_widths_m(&completion.amodal, r, window.metric_scale_m)
-            .into_iter()
-            .map(|w| w * opts.max_thickness_per_width)
-            .collect()
-    });
+    let (max_thick, run_cap) = thickness_caps(opts, completion, window);
     let mut spread_dropped = 0;
     let mut far_side_observed = 0;
-    let mut positions = Vec::new();
-    let mut colors = Vec::new();
-    let mut confidence = Vec::new();
-    let mut push = |k: usize, z: f32, shade: f32| {
-        let (u, v) = window.pixel_centre(k);
-        let p_cam = frame.camera.intrinsics.unproject(u, v, z);
-        positions.push(frame.camera.world_from_camera.transform_point(&p_cam));
-        colors.push(std::array::from_fn(|c| {
-            (completion.rgb[3 * k + c] as f32 * shade) as u8
-        }));
-        confidence.push(
-            completion
-                .mask_probability
-                .get(k)
-                .copied()
-                .unwrap_or(0.5)
-                .clamp(0.0, 1.0),
-        );
-    };
+    let mut out = Emitted::default();
+    let mut push = |k: usize, z: f32, shade: f32| out.push(window, frame, completion, k, z, shade);
     for (k, &is_visible) in visible.iter().enumerate().take(n) {
         if !completion.amodal[k] || window.source_pixel[k].is_none() {
             continue;
@@ -379,19 +323,134 @@ pub fn fuse_completion_detailed(
     record.spread_dropped = spread_dropped;
     record.uncertain_dropped = uncertain_dropped;
     record.far_side_observed = far_side_observed;
-    record.new_points = positions.len();
+    record.new_points = out.positions.len();
     record.accepted = true;
     record.reason = "ok".into();
-    let len = positions.len();
-    let cloud = PointCloud {
-        positions,
-        colors: Some(colors),
-        instance: Some(vec![window.instance_id as u32; len]),
-        generated: Some(vec![provenance.code(); len]),
-        confidence: Some(confidence),
-        normals: None,
+    (
+        out.into_cloud(window.instance_id, provenance),
+        record,
+        left_out,
+    )
+}
+
+/// A completion's record before fusion: nothing accepted yet.
+fn new_record(
+    window: &CropWindow,
+    completer: &str,
+    visible_px: usize,
+    amodal_px: usize,
+) -> CompletionRecord {
+    CompletionRecord {
+        instance_id: window.instance_id,
+        view: window.view,
+        completer: completer.to_string(),
+        visible_px,
+        amodal_px,
+        new_points: 0,
+        metric_scale_m: window.metric_scale_m,
+        fit: None,
+        mean_confidence: None,
+        seen_through_fraction: None,
+        gated: false,
+        spread_dropped: 0,
+        uncertain_dropped: 0,
+        far_side_observed: 0,
+        accepted: false,
+        reason: String::new(),
+    }
+}
+
+/// The completer's relative depth fitted to the observed depth over the visible pixels (Huber
+/// scale and shift), and why it is refused if it is: a poor fit would put generated geometry at
+/// the wrong depth, so the completion is rejected rather than allowed to pollute the cloud.
+fn fit_to_observed(
+    vis: &[usize],
+    completion: &CropCompletion,
+    window: &CropWindow,
+) -> (Option<deocc_geometry::robust::AffineFit>, Option<String>) {
+    let x: Vec<f32> = vis.iter().map(|&k| completion.depth[k]).collect();
+    let y: Vec<f32> = vis.iter().map(|&k| window.observed_depth_m[k]).collect();
+    let fit = match huber_affine_fit(&x, &y, &HuberOptions::default()) {
+        Ok(f) => f,
+        Err(e) => return (None, Some(format!("depth fit failed: {e}"))),
     };
-    (cloud, record, left_out)
+    if fit.alpha <= 0.0 || fit.inlier_fraction < MIN_FIT_INLIERS || fit.scale > MAX_FIT_RESIDUAL_M {
+        let why = format!(
+            "poor depth fit (alpha {:.3}, inliers {:.2}, residual scale {:.3} m)",
+            fit.alpha, fit.inlier_fraction, fit.scale
+        );
+        return (Some(fit), Some(why));
+    }
+    (Some(fit), None)
+}
+
+/// The far side's thickness caps: metres (infinite when off), and per pixel the silhouette-
+/// relative cap when it is on.
+fn thickness_caps(
+    opts: &FuseOptions<'_>,
+    completion: &CropCompletion,
+    window: &CropWindow,
+) -> (f32, Option<Vec<f32>>) {
+    let max_thick = if opts.max_thickness_m > 0.0 {
+        opts.max_thickness_m
+    } else {
+        f32::INFINITY
+    };
+    let run_cap = (opts.max_thickness_per_width > 0.0).then(|| {
+        row_run_widths_m(&completion.amodal, window.resolution, window.metric_scale_m)
+            .into_iter()
+            .map(|w| w * opts.max_thickness_per_width)
+            .collect()
+    });
+    (max_thick, run_cap)
+}
+
+/// Generated points as they are made: position, colour (shaded), the completer's probability.
+#[derive(Default)]
+struct Emitted {
+    positions: Vec<nalgebra::Point3<f32>>,
+    colors: Vec<[u8; 3]>,
+    confidence: Vec<f32>,
+}
+
+impl Emitted {
+    fn push(
+        &mut self,
+        window: &CropWindow,
+        frame: &Frame,
+        completion: &CropCompletion,
+        k: usize,
+        z: f32,
+        shade: f32,
+    ) {
+        let (u, v) = window.pixel_centre(k);
+        let p_cam = frame.camera.intrinsics.unproject(u, v, z);
+        self.positions
+            .push(frame.camera.world_from_camera.transform_point(&p_cam));
+        self.colors.push(std::array::from_fn(|c| {
+            (completion.rgb[3 * k + c] as f32 * shade) as u8
+        }));
+        self.confidence.push(
+            completion
+                .mask_probability
+                .get(k)
+                .copied()
+                .unwrap_or(0.5)
+                .clamp(0.0, 1.0),
+        );
+    }
+
+    fn into_cloud(self, instance_id: u16, provenance: Provenance) -> PointCloud {
+        let len = self.positions.len();
+        PointCloud {
+            positions: self.positions,
+            colors: Some(self.colors),
+            instance: Some(vec![instance_id as u32; len]),
+            generated: Some(vec![provenance.code(); len]),
+            confidence: Some(self.confidence),
+            normals: None,
+        }
+    }
 }
 
 #[cfg(test)]

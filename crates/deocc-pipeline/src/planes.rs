@@ -550,14 +550,9 @@ pub fn plane_fill(
     }
 }
 
-/// [`complete_planes`] on planes already found.
-pub fn complete_found_planes(
-    scene: &SceneInput,
-    found: &ScenePlanes,
-    opts: &PlaneOptions,
-) -> PointCloud {
-    let planes = &found.planes;
-    // Group coplanar instances (normals within 5 degrees, offsets within 3 cm).
+/// Groups coplanar planes (normals within 5 degrees, offsets within 3 cm): each plane's group is
+/// the index of the first plane of it.
+fn coplanar_groups(planes: &[Plane]) -> Vec<usize> {
     let mut group: Vec<usize> = (0..planes.len()).collect();
     for i in 0..planes.len() {
         for j in 0..i {
@@ -572,18 +567,65 @@ pub fn complete_found_planes(
             }
         }
     }
-    let projectors: Vec<Projector> = scene.frames.iter().map(|f| f.camera.projector()).collect();
-    // Bounding planes: every camera on one side (a wall, the floor), as a normal pointing to the
-    // cameras and its offset. A rectangle's corner that a hull did not reach must not lie behind
-    // one that stands across its own plane (a floor's corner through a wall, a wall's below the
-    // floor).
+    group
+}
+
+/// The hidden cells of a group of coplanar members to fill: all of them when every member is a
+/// surface, else those inside the joint region of the members that are. A member the views see
+/// through over much of what its points span is no surface (the vertical plane of a table's
+/// front legs and apron): nothing of it is filled.
+fn solid_part(
+    hidden: Vec<(Point3<f32>, Point2<f32>)>,
+    flats: &[Vec<Point2<f32>>],
+    unobserved: &[usize],
+    seen_through: &[usize],
+    opts: &PlaneOptions,
+) -> Vec<Point3<f32>> {
+    let solid: Vec<usize> = (0..flats.len())
+        .filter(|&k| seen_through[k] as f32 <= opts.max_seen_through * unobserved[k] as f32)
+        .collect();
+    if solid.len() == flats.len() {
+        return hidden.into_iter().map(|(p, _)| p).collect();
+    }
+    let kept = fill_region(
+        convex_hull(solid.iter().flat_map(|&k| flats[k].clone()).collect()),
+        opts.min_rectangularity,
+    );
+    hidden
+        .into_iter()
+        .filter(|(_, q)| inside(&kept, q))
+        .map(|(p, _)| p)
+        .collect()
+}
+
+/// Bounding planes among the groups: every camera on one side (a wall, the floor), as the
+/// group, a normal pointing to the cameras and its offset. A rectangle's corner that a hull did
+/// not reach must not lie behind one that stands across its own plane (a floor's corner through
+/// a wall, a wall's below the floor).
+fn group_bounds(
+    planes: &[Plane],
+    group: &[usize],
+    scene: &SceneInput,
+) -> Vec<(usize, Vector3<f32>, f32)> {
     let centres: Vec<Point3<f32>> = scene.frames.iter().map(|f| f.camera.center()).collect();
-    let bounds: Vec<(usize, Vector3<f32>, f32)> = (0..planes.len())
+    (0..planes.len())
         .filter(|&i| group[i] == i)
         .filter_map(|i| {
             facing_cameras(planes[i].normal, planes[i].offset, &centres).map(|(n, o)| (i, n, o))
         })
-        .collect();
+        .collect()
+}
+
+/// [`complete_planes`] on planes already found.
+pub fn complete_found_planes(
+    scene: &SceneInput,
+    found: &ScenePlanes,
+    opts: &PlaneOptions,
+) -> PointCloud {
+    let planes = &found.planes;
+    let group = coplanar_groups(planes);
+    let projectors: Vec<Projector> = scene.frames.iter().map(|f| f.camera.projector()).collect();
+    let bounds = group_bounds(planes, &group, scene);
     let mut out = PointCloud::default();
     let (mut positions, mut colors, mut ids) = (Vec::new(), Vec::new(), Vec::new());
     let groups: std::collections::BTreeSet<usize> = group.iter().copied().collect();
@@ -701,24 +743,7 @@ pub fn complete_found_planes(
                 }
             }
         }
-        // A plane the views see through over much of what its points span is no surface (the
-        // vertical plane of a table's front legs and apron): fill nothing of it.
-        let solid: Vec<usize> = (0..hulls.len())
-            .filter(|&k| seen_through[k] as f32 <= opts.max_seen_through * unobserved[k] as f32)
-            .collect();
-        let fill: Vec<Point3<f32>> = if solid.len() == hulls.len() {
-            hidden.into_iter().map(|(p, _)| p).collect()
-        } else {
-            let kept = fill_region(
-                convex_hull(solid.iter().flat_map(|&k| flats[k].clone()).collect()),
-                opts.min_rectangularity,
-            );
-            hidden
-                .into_iter()
-                .filter(|(_, q)| inside(&kept, q))
-                .map(|(p, _)| p)
-                .collect()
-        };
+        let fill = solid_part(hidden, &flats, &unobserved, &seen_through, opts);
         tracing::debug!(
             "plane of instance {} ({:?}): {} filled; members' unobserved cells {:?}, seen through {:?}",
             first.instance_id,
