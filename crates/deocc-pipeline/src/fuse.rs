@@ -341,22 +341,10 @@ fn new_record(
     amodal_px: usize,
 ) -> CompletionRecord {
     CompletionRecord {
-        instance_id: window.instance_id,
-        view: window.view,
-        completer: completer.to_string(),
         visible_px,
         amodal_px,
-        new_points: 0,
         metric_scale_m: window.metric_scale_m,
-        fit: None,
-        mean_confidence: None,
-        seen_through_fraction: None,
-        gated: false,
-        spread_dropped: 0,
-        uncertain_dropped: 0,
-        far_side_observed: 0,
-        accepted: false,
-        reason: String::new(),
+        ..CompletionRecord::pending(window.instance_id, window.view, completer, String::new())
     }
 }
 

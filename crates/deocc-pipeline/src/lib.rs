@@ -440,24 +440,12 @@ fn fuse_completions(
         }
     }
     for d in declined {
-        records.push(CompletionRecord {
-            instance_id: d.instance_id,
-            view: d.view,
-            completer: "none".into(),
-            visible_px: 0,
-            amodal_px: 0,
-            new_points: 0,
-            metric_scale_m: 0.0,
-            fit: None,
-            mean_confidence: None,
-            seen_through_fraction: None,
-            gated: false,
-            spread_dropped: 0,
-            uncertain_dropped: 0,
-            far_side_observed: 0,
-            accepted: false,
-            reason: format!("declined: {}", d.reasons.join("; ")),
-        });
+        records.push(CompletionRecord::pending(
+            d.instance_id,
+            d.view,
+            "none",
+            format!("declined: {}", d.reasons.join("; ")),
+        ));
     }
     (generated, records)
 }

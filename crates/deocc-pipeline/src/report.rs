@@ -53,6 +53,31 @@ pub struct CompletionRecord {
     pub reason: String,
 }
 
+impl CompletionRecord {
+    /// A record of a crop of `instance_id` in `view` that `completer` has not (yet) completed:
+    /// nothing measured, nothing accepted, `reason` saying why.
+    pub fn pending(instance_id: u16, view: usize, completer: &str, reason: String) -> Self {
+        CompletionRecord {
+            instance_id,
+            view,
+            completer: completer.to_string(),
+            visible_px: 0,
+            amodal_px: 0,
+            new_points: 0,
+            metric_scale_m: 0.0,
+            fit: None,
+            mean_confidence: None,
+            seen_through_fraction: None,
+            gated: false,
+            spread_dropped: 0,
+            uncertain_dropped: 0,
+            far_side_observed: 0,
+            accepted: false,
+            reason,
+        }
+    }
+}
+
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct StageTimings {
     pub reconstruct_s: f64,
