@@ -127,8 +127,8 @@ pub fn read_depth_expecting(
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
     let (w, h, metres) = if is_npy {
         let bytes = std::fs::read(path).map_err(|e| IoError::new(path, e))?;
-        let (h, w, values) =
-            crate::npy::read_depth_npy(&bytes, scale).map_err(|e| IoError::invalid(path, e))?;
+        let (h, w, values) = crate::npy::read_depth_npy(&bytes, scale, MAX_IMAGE_SIDE)
+            .map_err(|e| IoError::invalid(path, e))?;
         if let Some((ew, eh)) = expected {
             if (w, h) != (ew, eh) {
                 return Err(IoError::invalid(

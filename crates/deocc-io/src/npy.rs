@@ -6,9 +6,13 @@
 /// Largest header accepted (bytes); NumPy writes under 200.
 const MAX_HEADER: usize = 1 << 16;
 
-/// Parses `bytes` into (height, width, metres). Non-finite and non-positive values are "no
-/// measurement" (0).
-pub fn read_depth_npy(bytes: &[u8], scale: f64) -> Result<(u32, u32, Vec<f32>), String> {
+/// Parses `bytes` into (height, width, metres), refusing arrays over `max_side` a side before
+/// reading their body. Non-finite and non-positive values are "no measurement" (0).
+pub fn read_depth_npy(
+    bytes: &[u8],
+    scale: f64,
+    max_side: u32,
+) -> Result<(u32, u32, Vec<f32>), String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("not a NumPy .npy file (no \\x93NUMPY magic)".into());
     }
@@ -67,7 +71,7 @@ pub fn read_depth_npy(bytes: &[u8], scale: f64) -> Result<(u32, u32, Vec<f32>), 
             ))
         }
     };
-    let side = crate::images::MAX_IMAGE_SIDE as usize;
+    let side = max_side as usize;
     if h == 0 || w == 0 || h > side || w > side {
         return Err(format!(
             ".npy depth of {h}x{w} is empty or over {side} a side"
@@ -136,7 +140,7 @@ mod tests {
     #[test]
     fn float_depth_round_trips_and_bad_values_are_holes() {
         let v = [1.5f32, f32::NAN, 0.0, -1.0, f32::INFINITY, 2.25];
-        let (h, w, got) = read_depth_npy(&depth_npy_bytes(3, 2, &v), 0.001).unwrap();
+        let (h, w, got) = read_depth_npy(&depth_npy_bytes(3, 2, &v), 0.001, 16_384).unwrap();
         assert_eq!((h, w), (2, 3));
         assert_eq!(got, vec![1.5, 0.0, 0.0, 0.0, 0.0, 2.25]);
     }
@@ -144,7 +148,7 @@ mod tests {
     #[test]
     fn bad_arrays_are_refused_with_the_reason() {
         let good = depth_npy_bytes(3, 2, &[1.0; 6]);
-        assert!(read_depth_npy(&good[..good.len() - 1], 0.001)
+        assert!(read_depth_npy(&good[..good.len() - 1], 0.001, 16_384)
             .unwrap_err()
             .contains("body has"));
         // Header edits of the same length keep the body where it was.
@@ -155,9 +159,16 @@ mod tests {
             b
         };
         let f8 = edit(b"<f4", b"<f8");
-        assert!(read_depth_npy(&f8, 0.001).unwrap_err().contains("<f8"));
+        assert!(read_depth_npy(&f8, 0.001, 16_384)
+            .unwrap_err()
+            .contains("<f8"));
         let three = edit(b"(2, 3), ", b"(2, 3, 3)");
-        assert!(read_depth_npy(&three, 0.001).unwrap_err().contains("2-D"));
-        assert!(read_depth_npy(b"PNG....nonsense", 0.001).is_err());
+        assert!(read_depth_npy(&three, 0.001, 16_384)
+            .unwrap_err()
+            .contains("2-D"));
+        assert!(read_depth_npy(b"PNG....nonsense", 0.001, 16_384).is_err());
+        // Over the side limit: refused before the body is read.
+        let e = read_depth_npy(&good, 0.001, 2).unwrap_err();
+        assert!(e.contains("over 2 a side"), "{e}");
     }
 }
