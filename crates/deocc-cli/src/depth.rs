@@ -43,3 +43,16 @@ impl DepthArgs {
         }
     }
 }
+
+/// One line on stderr per frame the depth stage filled (or left, and why).
+pub fn print_depth_fill(fills: &[deocc_pipeline::depth::DepthFillReport]) {
+    for r in fills {
+        match &r.skipped {
+            None => eprintln!(
+                "frame {}: filled {} unmeasured depth pixels from {} ({} measured)",
+                r.frame, r.filled, r.source, r.measured
+            ),
+            Some(why) => eprintln!("frame {}: depth not filled by {}: {why}", r.frame, r.source),
+        }
+    }
+}

@@ -88,7 +88,7 @@ fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<Completed> {
         prepared,
         &deocc_pipeline::Unobserved,
     )?;
-    crate::run::print_depth_fill(&out.report.depth_fill);
+    crate::depth::print_depth_fill(&out.report.depth_fill);
     let cameras = scene
         .frames
         .iter()

@@ -109,7 +109,7 @@ pub fn run_scene(
     }
     let result =
         deocc_pipeline::run_prepared(&scene, chain, opts, prepared, &deocc_pipeline::Unobserved)?;
-    print_depth_fill(&result.report.depth_fill);
+    crate::depth::print_depth_fill(&result.report.depth_fill);
     let gt_path = input_dir.join("ground_truth.ply");
     let evaluation = if gt_path.exists() {
         let (gt, seen) = deocc_eval::reconstruction::read_ground_truth(&gt_path)?;
@@ -152,19 +152,6 @@ pub fn run_scene(
         evaluation,
         out,
     })
-}
-
-/// One line on stderr per frame the depth stage filled (or left, and why).
-pub fn print_depth_fill(fills: &[deocc_pipeline::depth::DepthFillReport]) {
-    for r in fills {
-        match &r.skipped {
-            None => eprintln!(
-                "frame {}: filled {} unmeasured depth pixels from {} ({} measured)",
-                r.frame, r.filled, r.source, r.measured
-            ),
-            Some(why) => eprintln!("frame {}: depth not filled by {}: {why}", r.frame, r.source),
-        }
-    }
 }
 
 pub fn run(a: RunArgs) -> Result<()> {
