@@ -27,6 +27,16 @@ deny deocc-model deocc-pipeline "the model implements the seams (deocc-completio
 for crate in deocc-geometry deocc-io deocc-completion deocc-pipeline deocc-model deocc-robot deocc-service deocc-python deocc-ros2; do
   deny "$crate" deocc-eval "the product path must not depend on the evaluation crate"
 done
+# The product binary (deocc-cli without its `lab` feature: run, batch, serve, grasp, place,
+# options) links neither the benchmark renderer nor the evaluation crate, and builds and lints
+# clean on its own.
+for lab in deocc-synth deocc-eval; do
+  if cargo tree --locked -p deocc-cli --no-default-features -e normal --prefix none | grep -q "^$lab "; then
+    echo "error: the product binary (deocc-cli --no-default-features) depends on $lab" >&2
+    exit 1
+  fi
+done
+cargo clippy --locked -p deocc-cli --no-default-features --all-targets --release -- -D warnings
 # Two test threads on two cores: candle's and rayon's pools collapse when oversubscribed.
 # --all-features: the ROS 2 bridge (deocc-ros2's `ros2` feature) and its loopback test, which
 # needs a large UDP receive buffer.

@@ -2,12 +2,11 @@
 //! shipped GL-DoT weights are built into the binary, so `deocc` works from any folder; `--weights
 //! DIR` loads another model.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
 use deocc_completion::CompleterChain;
-use deocc_model::GlDotCompleter;
 
 #[derive(Args, Clone, Debug)]
 pub struct CompleterArgs {
@@ -24,7 +23,8 @@ pub struct CompleterArgs {
 }
 
 /// Loads GL-DoT from `weights`, or the built-in model.
-pub fn load_gldot(weights: Option<&Path>) -> Result<GlDotCompleter> {
+#[cfg(feature = "lab")]
+pub fn load_gldot(weights: Option<&std::path::Path>) -> Result<deocc_model::GlDotCompleter> {
     deocc_model::chain::load_gldot(weights).map_err(anyhow::Error::msg)
 }
 
@@ -57,8 +57,9 @@ pub fn describe_model(a: &CompleterArgs) -> String {
 
 /// Named chains for a benchmark's rows: each entry a chain spelled as `--completer` would
 /// (`"gldot,rules"`), all loading GL-DoT from `weights` (or the built-in model).
+#[cfg(feature = "lab")]
 pub fn named_chains(
-    weights: Option<&Path>,
+    weights: Option<&std::path::Path>,
     names: &[&str],
 ) -> Result<Vec<(String, CompleterChain)>> {
     names
@@ -66,7 +67,7 @@ pub fn named_chains(
         .map(|&name| {
             let c = chain(&CompleterArgs {
                 completer: name.split(',').map(str::to_string).collect(),
-                weights: weights.map(Path::to_path_buf),
+                weights: weights.map(std::path::Path::to_path_buf),
             })?;
             Ok((name.to_string(), c))
         })

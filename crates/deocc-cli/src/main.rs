@@ -6,22 +6,36 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod batch;
-mod bench;
 mod completers;
 mod depth;
-mod eval;
+mod example;
 mod input;
 mod options;
 mod progress;
-mod report;
 mod robot;
-mod robot_eval;
 mod run;
-mod scene_options;
-mod sensor;
 mod serve;
+
+// The lab: the benchmark generator, training, evaluation and benchmarks (the `lab` feature).
+#[cfg(feature = "lab")]
+mod bench;
+#[cfg(feature = "lab")]
+mod eval;
+#[cfg(feature = "lab")]
+mod recipe;
+#[cfg(feature = "lab")]
+mod report;
+#[cfg(feature = "lab")]
+mod robot_eval;
+#[cfg(feature = "lab")]
+mod scene_options;
+#[cfg(feature = "lab")]
+mod sensor;
+#[cfg(feature = "lab")]
 mod sheet;
+#[cfg(feature = "lab")]
 mod synth;
+#[cfg(feature = "lab")]
 mod train;
 
 #[global_allocator]
@@ -78,16 +92,21 @@ enum Command {
     Serve(serve::ServeArgs),
     /// Make synthetic scenes, training pairs and contact sheets.
     #[command(subcommand)]
+    #[cfg(feature = "lab")]
     Synth(synth::SynthCommand),
     /// Train GL-DoT (starts or resumes a run directory).
+    #[cfg(feature = "lab")]
     Train(train::TrainArgs),
     /// Export a training run's EMA weights (f16) for shipping.
+    #[cfg(feature = "lab")]
     Export(train::ExportArgs),
     /// Evaluate on held-out data and write a report.
     #[command(subcommand)]
+    #[cfg(feature = "lab")]
     Eval(eval::EvalCommand),
     /// Measure speed against a peer and write a report.
     #[command(subcommand)]
+    #[cfg(feature = "lab")]
     Bench(bench::BenchCommand),
     /// Grasps on one object of a scene: antipodal parallel-jaw grasps planned on the completed
     /// cloud, checked for collision against the whole scene; JSON (pose, width, score) and a
@@ -114,10 +133,15 @@ fn main() -> ExitCode {
         Command::Run(a) => run::run(a),
         Command::Batch(a) => batch::batch(a),
         Command::Serve(a) => serve::serve(a),
+        #[cfg(feature = "lab")]
         Command::Synth(c) => synth::run(c),
+        #[cfg(feature = "lab")]
         Command::Bench(c) => bench::run(c),
+        #[cfg(feature = "lab")]
         Command::Train(a) => train::run(a),
+        #[cfg(feature = "lab")]
         Command::Eval(c) => eval::run(c),
+        #[cfg(feature = "lab")]
         Command::Export(a) => train::export(a),
         Command::Grasp(a) => robot::grasp(a),
         Command::Place(a) => robot::place(a),

@@ -23,7 +23,7 @@ pub struct RunArgs {
     /// Output folder (replaced if it holds a previous run's output).
     #[arg(long)]
     out: PathBuf,
-    /// Make a benchmark scene (bench-v1 scene 0) and run on it.
+    /// Run on the built-in example: bench-v1 scene 0 (ten views and its ground truth).
     #[arg(long)]
     example: bool,
     #[command(flatten)]
@@ -63,7 +63,7 @@ pub struct RunHow {
 /// truth (if it has one), and the output folder.
 pub struct SceneRun {
     pub result: deocc_pipeline::PipelineOutput,
-    pub evaluation: Option<deocc_eval::reconstruction::RunEvaluation>,
+    pub evaluation: Option<deocc_pipeline::ground_truth::RunEvaluation>,
     pub out: PathBuf,
 }
 
@@ -86,7 +86,7 @@ pub fn run_scene(
         Some(p) => (p.to_path_buf(), p.to_path_buf()),
         None => {
             let dir = staging.dir().join("input");
-            crate::synth::write_example_scene(&dir)?;
+            crate::example::write_example_scene(&dir)?;
             (dir, staging.out().join("input"))
         }
     };
@@ -112,9 +112,9 @@ pub fn run_scene(
     crate::depth::print_depth_fill(&result.report.depth_fill);
     let gt_path = input_dir.join("ground_truth.ply");
     let evaluation = if gt_path.exists() {
-        let (gt, seen) = deocc_eval::reconstruction::read_ground_truth(&gt_path)?;
+        let (gt, seen) = deocc_pipeline::ground_truth::read_ground_truth(&gt_path)?;
         let cams: Vec<_> = scene.frames.iter().map(|f| f.camera).collect();
-        Some(deocc_eval::reconstruction::evaluate_run(
+        Some(deocc_pipeline::ground_truth::evaluate_run(
             &gt,
             &seen,
             &cams,

@@ -22,6 +22,16 @@ pub enum SynthCommand {
     Pairs(PairsArgs),
     /// Write a contact sheet PNG (RGB | depth | instances | amodal) of one scene.
     Sheet(crate::sheet::SheetArgs),
+    /// Write the built-in example of `deocc run --example` (bench-v1 scene 0, its ground truth
+    /// every second point) into a folder; `crates/deocc-cli/example` is embedded in the binary.
+    Example(ExampleArgs),
+}
+
+#[derive(Args)]
+pub struct ExampleArgs {
+    /// Output folder (crates/deocc-cli/example to refresh the embedded example).
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -85,6 +95,11 @@ pub fn run(cmd: SynthCommand) -> Result<()> {
         SynthCommand::Scenes(a) => scenes(a),
         SynthCommand::Pairs(a) => pairs(a),
         SynthCommand::Sheet(a) => crate::sheet::sheet(a),
+        SynthCommand::Example(a) => {
+            write_example_scene(&a.out)?;
+            println!("wrote the built-in example to {}", a.out.display());
+            Ok(())
+        }
     }
 }
 
@@ -221,10 +236,28 @@ fn pairs(a: PairsArgs) -> Result<()> {
     Ok(())
 }
 
-/// The example of `deocc run --example`: bench-v1 scene 0, written as a scene folder.
+/// The example of `deocc run --example`: bench-v1 scene 0 as a scene folder, without what the
+/// run does not read (the amodal masks) and with every second point of
+/// its ground truth (positions and `seen` flags; the figures the run reports against it are
+/// means over the ground truth's points, so they barely move), small enough to embed.
 pub fn write_example_scene(dir: &Path) -> Result<()> {
     let p = deocc_synth::dataset::bench_v1();
     let rendered = render_full_scene(&p.config, p.seeds[0])?;
     write_scene(dir, &p.config, &rendered)?;
+    let amodal = dir.join("amodal");
+    std::fs::remove_dir_all(&amodal)
+        .with_context(|| format!("{}: cannot remove", amodal.display()))?;
+    let gt = &rendered.ground_truth;
+    let keep: Vec<usize> = (0..gt.cloud.len()).step_by(2).collect();
+    let thin = deocc_geometry::PointCloud::from_positions(
+        keep.iter().map(|&i| gt.cloud.positions[i]).collect(),
+    );
+    let seen: Vec<u8> = keep.iter().map(|&i| gt.seen[i] as u8).collect();
+    deocc_io::ply::write_point_cloud_with_extras(
+        &dir.join("ground_truth.ply"),
+        &thin,
+        &[("seen", &seen)],
+        deocc_io::ply::PlyEncoding::BinaryLittleEndian,
+    )?;
     Ok(())
 }

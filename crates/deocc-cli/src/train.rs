@@ -15,6 +15,14 @@ pub struct TrainArgs {
     /// Run directory: created if new, resumed if it holds a checkpoint.
     #[arg(long)]
     run: PathBuf,
+    /// A whole recipe (configs/gldot-small.json is the shipped model's): make its training
+    /// pairs, train its phases in order and export, resumable; the run directory holds one
+    /// folder per phase and `export/`. The recipe's entries are this command's flags.
+    #[arg(long, conflicts_with_all = RECIPE_CONFLICTS)]
+    config: Option<PathBuf>,
+    /// With --config: the folder the recipe's paths are relative to.
+    #[arg(long, default_value = ".", requires = "config")]
+    data_root: PathBuf,
     /// Folder with train-*.safetensors pair shards (from `deocc synth pairs --split train`).
     #[arg(long, default_value = "data/pairs")]
     data: PathBuf,
@@ -36,6 +44,9 @@ pub struct TrainArgs {
     learning_rate: f64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Steps of linear learning-rate warm-up before the cosine decay.
+    #[arg(long, default_value_t = 300)]
+    warmup_steps: usize,
     /// Timestep shift used in training and sampling.
     #[arg(long, default_value_t = 1.0)]
     timestep_shift: f32,
@@ -92,7 +103,51 @@ pub struct TrainArgs {
     far_side_full_weight: bool,
 }
 
+/// The flags a recipe sets itself.
+const RECIPE_CONFLICTS: &[&str] = &[
+    "data",
+    "preset",
+    "mask_prior",
+    "steps",
+    "batch_size",
+    "learning_rate",
+    "seed",
+    "warmup_steps",
+    "timestep_shift",
+    "checkpoint_every",
+    "init",
+    "channel_loss_weights",
+    "limit_shards",
+    "resident_pairs",
+    "reshuffle_every",
+    "mask_loss_weight",
+    "mean_head",
+    "mean_loss_weight",
+    "error_head",
+    "error_loss_weight",
+    "other_views_observed",
+    "depth_loss_metric_width",
+    "far_side_full_weight",
+];
+
+impl TrainArgs {
+    /// Total optimisation steps asked for.
+    pub fn steps(&self) -> usize {
+        self.steps
+    }
+}
+
 pub fn run(a: TrainArgs) -> Result<()> {
+    if let Some(recipe) = &a.config {
+        let out = crate::recipe::run_recipe(recipe, &a.run, &a.data_root)?;
+        println!(
+            "recipe {} done: weights in {} (judge them with `deocc eval amodal --weights {}`)",
+            recipe.display(),
+            out.display(),
+            out.display()
+        );
+        return Ok(());
+    }
     let Some(mut model) = GlDotConfig::preset(&a.preset) else {
         bail!("unknown preset '{}' (known: tiny, small, large)", a.preset);
     };
@@ -178,6 +233,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         batch_size: a.batch_size,
         steps: a.steps,
         learning_rate: a.learning_rate,
+        warmup_steps: a.warmup_steps,
         timestep_shift: a.timestep_shift,
         checkpoint_every: a.checkpoint_every,
         channel_loss_weights: a.channel_loss_weights,

@@ -1097,6 +1097,18 @@ impl Trainer {
     }
 }
 
+/// Whether the run directory `dir` holds a checkpoint at `steps` or beyond (a finished run; no
+/// checkpoint: not started).
+pub fn finished(dir: &Path, steps: usize) -> Result<bool> {
+    let path = dir.join("state.json");
+    if !path.exists() {
+        return Ok(false);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| file_err(&path, e))?;
+    let state: TrainState = serde_json::from_str(&text).map_err(|e| file_err(&path, e))?;
+    Ok(state.step >= steps)
+}
+
 /// A training run as `deocc train` makes it: where, with what, from which data.
 #[derive(Debug, Clone)]
 pub struct TrainRunOptions {

@@ -162,8 +162,8 @@ pub fn complete_instances(
         for chunk in mine.chunks(opts.batch.max(1)) {
             // The longest stage: a cancelled or timed-out run stops between batches, not only
             // when the stage is over.
-            let (_, from) = crate::STAGES[3];
-            let (_, to) = crate::STAGES[4];
+            let from = crate::stages::progress("complete");
+            let to = crate::stages::progress("fuse");
             let done_share = chunk[0] as f32 / jobs.len().max(1) as f32;
             if !observer.stage("complete", from + (to - from) * done_share) {
                 return Err(PipelineError::Cancelled { stage: "complete" });

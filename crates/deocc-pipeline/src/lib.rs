@@ -1,25 +1,8 @@
 //! # deocc-pipeline
 //!
-//! The de-occlusion pipeline as plain functions over plain data, one stage per file:
-//!
-//! | stage | file | function |
-//! |---|---|---|
-//! | read scene (no side effects) | `deocc_io::scene` | [`read_scene`] |
-//! | depth: fill what the sensor did not measure (optional; [`run`]'s first stage with `fill_depth_max_gap_px`) | [`depth`] | [`depth::fill_scene_depth`] |
-//! | registration of pose-free input | [`registration`] | [`registration::register_unposed`] |
-//! | instances: given, segmented or mixed | [`instances`], [`segment`] | [`instances::ensure_instances`] |
-//! | reconstruction | [`reconstruct`] | [`reconstruct::reconstruct`] |
-//! | occlusion per view | [`occlusion`] | [`occlusion::analyse_view`] |
-//! | cross-view matching | [`matching`] | [`matching::match_masks`] |
-//! | view selection | [`views`] | [`views::select_views`] |
-//! | crops and completion | [`crops`], [`complete`] | [`complete::complete_instances`] |
-//! | alignment and fusion | [`fuse`] | [`fuse::fuse_completion`] |
-//! | support: hidden bottoms down to the surface below | [`support`] | [`support::extend_to_support`] |
-//! | revolve: upright solids of revolution completed on their axis | [`revolve`] | [`revolve::revolve_instances`] |
-//! | cuboid: upright boxes seen at an angle completed as boxes | [`cuboid`] | [`cuboid::cuboid_instances`] |
-//! | carving (views; bounding planes) | [`carve`], [`planes`] | [`carve::keep_hidden`], [`planes::keep_inside`] |
-//! | planes | [`planes`] | [`planes::complete_planes`] |
-//! | output folder | [`output`] | [`output::write_output`] |
+//! The de-occlusion pipeline as plain functions over plain data, one stage per file. The stages,
+//! in order, with their files and functions, are one list: [`stages::STAGES`] (ARCHITECTURE.md's
+//! table is generated from it and checked by a test).
 //!
 //! [`run`] composes them on a loaded scene whose frames all have instance maps. The parts users
 //! swap are traits: the completer chain ([`deocc_completion::Completer`]: GL-DoT, the rules
@@ -37,6 +20,7 @@ pub mod error;
 pub mod front;
 pub mod fuse;
 pub mod gate;
+pub mod ground_truth;
 pub mod instances;
 pub mod matching;
 pub mod occlusion;
@@ -54,6 +38,7 @@ pub mod report;
 pub mod report_html;
 pub mod revolve;
 pub mod segment;
+pub mod stages;
 pub mod stats;
 pub mod support;
 pub mod views;
@@ -100,23 +85,11 @@ impl Observer for Unobserved {
     }
 }
 
-/// The stages in order, with the share of a run's time before each (bench-v1 means).
-pub const STAGES: [(&str, f32); 7] = [
-    ("reconstruct", 0.0),
-    ("occlusion", 0.47),
-    ("select_views", 0.5),
-    ("complete", 0.53),
-    ("fuse", 0.69),
-    ("planes", 0.77),
-    ("report", 0.99),
-];
-
-fn enter(observer: &dyn Observer, stage: usize) -> Result<(), PipelineError> {
-    let (name, fraction) = STAGES[stage];
-    if observer.stage(name, fraction) {
+fn enter(observer: &dyn Observer, stage: &'static str) -> Result<(), PipelineError> {
+    if observer.stage(stage, stages::progress(stage)) {
         Ok(())
     } else {
-        Err(PipelineError::Cancelled { stage: name })
+        Err(PipelineError::Cancelled { stage })
     }
 }
 
@@ -180,28 +153,28 @@ pub fn run_observed(
     let (filled, depth_fill) = fill_depth_first(scene, opts)?;
     let scene = filled.as_ref().unwrap_or(scene);
     check_input(scene, opts)?;
-    enter(observer, 0)?;
+    enter(observer, "reconstruct")?;
     let t = Instant::now();
     let observed = reconstruct::reconstruct(scene, opts.observed_voxel_m)?;
     timings.reconstruct_s = t.elapsed().as_secs_f64();
-    enter(observer, 1)?;
+    enter(observer, "occlusion")?;
 
     let t = Instant::now();
     let (occlusion, found, popts, to_complete) = occlusion_and_targets(scene, opts);
     timings.occlusion_s = t.elapsed().as_secs_f64();
-    enter(observer, 2)?;
+    enter(observer, "select_views")?;
 
     let t = Instant::now();
     let stats: Vec<_> = scene.frames.iter().map(stats::view_stats).collect();
     let selected = views::select_all(scene, &stats, &to_complete, opts);
     timings.select_views_s = t.elapsed().as_secs_f64();
-    enter(observer, 3)?;
+    enter(observer, "complete")?;
 
     let t = Instant::now();
     let (completed_crops, declined) =
         complete::complete_instances(scene, &stats, &selected, chain, opts, observer)?;
     timings.complete_s = t.elapsed().as_secs_f64();
-    enter(observer, 4)?;
+    enter(observer, "fuse")?;
 
     // The plane fill first: the support and revolve stages stand objects on it; it joins last.
     let t = Instant::now();
@@ -215,12 +188,12 @@ pub fn run_observed(
     let (generated, points_carved) = carve_stage(shaped.generated, found.as_ref(), scene, opts);
     let completed = fuse_generated(&observed, &generated, opts.fusion_voxel_m)?;
     timings.fuse_s = t.elapsed().as_secs_f64();
-    enter(observer, 5)?;
+    enter(observer, "planes")?;
 
     let t = Instant::now();
     let completed = join_plane_fill(completed, &fill, opts)?;
     timings.planes_s += t.elapsed().as_secs_f64();
-    enter(observer, 6)?;
+    enter(observer, "report")?;
     timings.total_s = t_all.elapsed().as_secs_f64();
 
     let mut report = make_report(

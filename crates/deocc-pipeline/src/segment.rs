@@ -24,6 +24,7 @@ use deocc_geometry::DepthMap;
 use deocc_io::images::InstanceMap;
 use deocc_io::scene::Frame;
 use nalgebra::{Point3, Vector3};
+use std::collections::HashMap;
 
 use crate::PipelineError;
 
@@ -187,50 +188,45 @@ impl ConvexitySegmenter {
         camera: &Camera,
         w: usize,
     ) {
-        use std::collections::HashMap;
-        let n = roots.len();
-        let up = camera
-            .world_from_camera
-            .rotation
-            .inverse_transform_vector(&self.up_world)
-            .normalize();
         // Segment boxes in a gravity-aligned frame (z up), from which heights are read.
         let level = nalgebra::Rotation3::rotation_between(&self.up_world, &Vector3::z())
             .unwrap_or_else(|| {
                 nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI)
             });
-        let mut index: HashMap<u32, usize> = HashMap::new();
-        let mut seg = vec![usize::MAX; n];
-        let mut bbox: Vec<(Point3<f32>, Point3<f32>)> = Vec::new();
-        for i in 0..n {
-            if d[i] <= 0.0 {
-                continue;
+        let world = |p: &Point3<f32>| level * (camera.world_from_camera * p);
+        let (seg, mut bbox) = segment_boxes(roots, d, pts, &world);
+        let up = camera
+            .world_from_camera
+            .rotation
+            .inverse_transform_vector(&self.up_world)
+            .normalize();
+        let contacts = self.boundary_contacts(&seg, d, pts, normals, &up, &world, w);
+        let candidates = self.merge_candidates(&contacts, &bbox);
+        let rep = self.union_candidates(candidates, &mut bbox);
+        // Back to pixel roots: every pixel of a merged group takes the group's representative.
+        for i in 0..roots.len() {
+            if seg[i] != usize::MAX {
+                roots[i] = rep[seg[i]];
             }
-            let k = *index.entry(roots[i]).or_insert_with(|| {
-                bbox.push((
-                    Point3::from([f32::INFINITY; 3]),
-                    Point3::from([f32::NEG_INFINITY; 3]),
-                ));
-                bbox.len() - 1
-            });
-            seg[i] = k;
-            let p = level * (camera.world_from_camera * pts[i]);
-            let b = &mut bbox[k];
-            b.0 = b.0.inf(&p);
-            b.1 = b.1.sup(&p);
         }
-        let lowest: Vec<f32> = bbox.iter().map(|b| b.0.z).collect();
-        // Neighbouring pixel pairs across segment boundaries: how many, how many touch in 3-D
-        // (no depth jump), at what height, how many of the touching ones see an upward-facing
-        // surface on either side (normals from `crease_reach` inside), and which side is nearer.
-        #[derive(Default)]
-        struct Contact {
-            adjacent: usize,
-            nearer: [usize; 2],
-            pairs: usize,
-            height_sum: f32,
-            up_facing: [usize; 2],
-        }
+    }
+
+    /// Neighbouring pixel pairs across segment boundaries, per pair of segments: how many, how
+    /// many touch in 3-D (no depth jump), at what height, how many of the touching ones see an
+    /// upward-facing surface on either side (normals from `crease_reach` inside), and which side
+    /// is nearer.
+    #[allow(clippy::too_many_arguments)]
+    fn boundary_contacts(
+        &self,
+        seg: &[usize],
+        d: &[f32],
+        pts: &[Point3<f32>],
+        normals: &[Vector3<f32>],
+        up: &Vector3<f32>,
+        world: &dyn Fn(&Point3<f32>) -> Point3<f32>,
+        w: usize,
+    ) -> HashMap<(usize, usize), Contact> {
+        let n = seg.len();
         let mut contacts: HashMap<(usize, usize), Contact> = HashMap::new();
         let reach = self.crease_reach;
         let cos_up = 30f32.to_radians().cos();
@@ -269,18 +265,28 @@ impl ConvexitySegmenter {
                     let inside_j = Some(j + reach * step)
                         .filter(|&x| x < n && seg[x] == b)
                         .unwrap_or(j);
-                    let up_i = normals[inside_i].dot(&up) > cos_up;
-                    let up_j = normals[inside_j].dot(&up) > cos_up;
+                    let up_i = normals[inside_i].dot(up) > cos_up;
+                    let up_j = normals[inside_j].dot(up) > cos_up;
                     let ups = if swap { [up_j, up_i] } else { [up_i, up_j] };
                     c.pairs += 1;
-                    c.height_sum += 0.5 * (level * (camera.world_from_camera * pts[i])).z
-                        + 0.5 * (level * (camera.world_from_camera * pts[j])).z;
+                    c.height_sum += 0.5 * world(&pts[i]).z + 0.5 * world(&pts[j]).z;
                     for (count, up) in c.up_facing.iter_mut().zip(ups) {
                         *count += up as usize;
                     }
                 }
             }
         }
+        contacts
+    }
+
+    /// The pairs of segments to merge, most adjacent pixels first: touching without one resting
+    /// on the other, or one hanging under the other.
+    fn merge_candidates(
+        &self,
+        contacts: &HashMap<(usize, usize), Contact>,
+        bbox: &[(Point3<f32>, Point3<f32>)],
+    ) -> Vec<(usize, usize)> {
+        let lowest: Vec<f32> = bbox.iter().map(|b| b.0.z).collect();
         // `low` hangs under `high`: its top is just under `high`'s bottom, within its footprint,
         // and `high` hides it along their shared boundary (a table's legs under its top).
         let hangs_under = |low: usize, high: usize, c: &Contact, high_side: usize| -> bool {
@@ -313,15 +319,25 @@ impl ConvexitySegmenter {
             .map(|(&k, c)| (k, c.adjacent))
             .collect();
         candidates.sort_by_key(|&((a, b), pairs)| (std::cmp::Reverse(pairs), a, b));
+        candidates.into_iter().map(|(k, _)| k).collect()
+    }
+
+    /// Merges the candidate pairs in order (union-find), never the floor and never past
+    /// `max_object_extent_m`; returns each segment's group representative.
+    fn union_candidates(
+        &self,
+        candidates: Vec<(usize, usize)>,
+        bbox: &mut [(Point3<f32>, Point3<f32>)],
+    ) -> Vec<u32> {
         // The floor (flat and lowest in view) never merges: anything it touches stands on it, but a
         // partly visible object can meet it at its side.
-        let floor_z = lowest.iter().copied().fold(f32::INFINITY, f32::min);
+        let floor_z = bbox.iter().map(|b| b.0.z).fold(f32::INFINITY, f32::min);
         let floor: Vec<bool> = bbox
             .iter()
             .map(|b| b.0.z < floor_z + 0.03 && b.1.z < floor_z + 0.05)
             .collect();
         let mut parent: Vec<u32> = (0..bbox.len() as u32).collect();
-        for ((a, b), _) in candidates {
+        for (a, b) in candidates {
             if floor[a] || floor[b] {
                 continue;
             }
@@ -339,15 +355,9 @@ impl ConvexitySegmenter {
             parent[ra] = rb as u32;
             bbox[rb] = merged;
         }
-        // Back to pixel roots: every pixel of a merged group takes the group's representative.
-        let rep: Vec<u32> = (0..bbox.len() as u32)
+        (0..bbox.len() as u32)
             .map(|k| find(&mut parent, k))
-            .collect();
-        for i in 0..n {
-            if seg[i] != usize::MAX {
-                roots[i] = rep[seg[i]];
-            }
-        }
+            .collect()
     }
 }
 
@@ -519,4 +529,46 @@ impl ConvexitySegmenter {
             }
         }
     }
+}
+
+/// What two segments share along their boundary (see `boundary_contacts`).
+#[derive(Default)]
+struct Contact {
+    adjacent: usize,
+    nearer: [usize; 2],
+    pairs: usize,
+    height_sum: f32,
+    up_facing: [usize; 2],
+}
+
+/// Each pixel's segment index (`usize::MAX` without depth) and each segment's box in the
+/// gravity-aligned frame `world`.
+#[allow(clippy::type_complexity)]
+fn segment_boxes(
+    roots: &[u32],
+    d: &[f32],
+    pts: &[Point3<f32>],
+    world: &dyn Fn(&Point3<f32>) -> Point3<f32>,
+) -> (Vec<usize>, Vec<(Point3<f32>, Point3<f32>)>) {
+    let mut index: HashMap<u32, usize> = HashMap::new();
+    let mut seg = vec![usize::MAX; roots.len()];
+    let mut bbox: Vec<(Point3<f32>, Point3<f32>)> = Vec::new();
+    for i in 0..roots.len() {
+        if d[i] <= 0.0 {
+            continue;
+        }
+        let k = *index.entry(roots[i]).or_insert_with(|| {
+            bbox.push((
+                Point3::from([f32::INFINITY; 3]),
+                Point3::from([f32::NEG_INFINITY; 3]),
+            ));
+            bbox.len() - 1
+        });
+        seg[i] = k;
+        let p = world(&pts[i]);
+        let b = &mut bbox[k];
+        b.0 = b.0.inf(&p);
+        b.1 = b.1.sup(&p);
+    }
+    (seg, bbox)
 }

@@ -965,7 +965,7 @@ fn an_observer_sees_each_stage_and_can_stop_the_run() {
     let mut names: Vec<&str> = seen.iter().map(|s| s.0).collect();
     // The completion stage also asks between its batches (a deadline inside the longest stage).
     names.dedup();
-    let expected: Vec<&str> = deocc_pipeline::STAGES.iter().map(|s| s.0).collect();
+    let expected: Vec<&str> = deocc_pipeline::stages::observed().map(|s| s.0).collect();
     assert_eq!(names, expected);
     assert!(seen.windows(2).all(|w| w[0].1 <= w[1].1));
     assert!(seen.first().unwrap().1 < seen.last().unwrap().1);
