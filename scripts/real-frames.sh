@@ -40,4 +40,17 @@ cp "$out/azure_kinect_desk_run/render_novel_view.png" docs/images/real_azure_kin
 if [[ -f $out/azure_kinect_desk_run/render_objects.png ]]; then
   cp "$out/azure_kinect_desk_run/render_objects.png" docs/images/real_azure_kinect_desk_objects.png
 fi
-echo "real frame: $out/azure_kinect_desk_run (report.html); pictures in docs/images/"
+
+# A Kinect-class structured-light frame of a bookshelf: Debian's mrpt-common ships it as an MRPT
+# rawlog (depth and colour cameras with their own calibrations), which deocc reads directly.
+rawlog=$out/tests_rgbd.rawlog
+if [[ ! -f $rawlog ]]; then
+  (cd "$out" && apt-get download mrpt-common >/dev/null)
+  deb=$(ls "$out"/mrpt-common_*.deb | head -1)
+  rm -rf "$out/mrpt-common" && dpkg-deb -x "$deb" "$out/mrpt-common"
+  cp "$out/mrpt-common/usr/share/mrpt/datasets/tests_rgbd.rawlog" "$rawlog"
+fi
+./target/release/deocc run "$rawlog" --out "$out/mrpt_bookshelf_run"
+cp "$out/mrpt_bookshelf_run/render_input_view.png" docs/images/real_mrpt_bookshelf_input.png
+cp "$out/mrpt_bookshelf_run/render_novel_view.png" docs/images/real_mrpt_bookshelf_novel.png
+echo "real frames: $out/azure_kinect_desk_run, $out/mrpt_bookshelf_run (report.html); pictures in docs/images/"

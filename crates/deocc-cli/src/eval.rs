@@ -317,11 +317,11 @@ pub struct AmodalArgs {
     #[arg(long)]
     no_seen_elsewhere: bool,
     /// Median filter radius (pixels) of the model's depth over its amodal mask before scoring
-    /// (the pipeline's `generated_depth_median_px`; default: the pipeline's); 0 = off.
+    /// (the pipeline's `completers.gldot.depth_median_px`; default: the pipeline's); 0 = off.
     #[arg(long, value_parser = clap::value_parser!(u32).range(0..=16))]
     median_px: Option<u32>,
     /// The filter applies to pairs whose crop is no wider than this, metres (the pipeline's
-    /// `generated_depth_median_max_crop_m`; default: the pipeline's); 0 = every pair.
+    /// `completers.gldot.depth_median_max_crop_m`; default: the pipeline's); 0 = every pair.
     #[arg(long)]
     median_max_crop_m: Option<f32>,
     /// Bootstrap resamples of every interval.
@@ -434,7 +434,7 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         }
     }
     // The depth figures are of what the pipeline fuses: its median filter by default.
-    let pipeline_defaults = deocc_pipeline::PipelineOptions::default();
+    let learned = deocc_completion::FusePolicy::LEARNED;
     let opts = AmodalEvalOptions {
         pairs: a.pairs,
         main_steps: a.main_steps as usize,
@@ -444,12 +444,10 @@ fn amodal(a: AmodalArgs) -> Result<()> {
         mask_thresholds_seen_elsewhere: a.mask_thresholds_seen_elsewhere.clone(),
         bootstrap_resamples: a.bootstrap,
         skip_cross_view: a.no_cross_view,
-        depth_median_px: a
-            .median_px
-            .map_or(pipeline_defaults.generated_depth_median_px, |r| r as usize),
+        depth_median_px: a.median_px.map_or(learned.depth_median_px, |r| r as usize),
         depth_median_max_crop_m: a
             .median_max_crop_m
-            .unwrap_or(pipeline_defaults.generated_depth_median_max_crop_m),
+            .unwrap_or(learned.depth_median_max_crop_m),
         ..AmodalEvalOptions::default()
     };
     let n = opts.pairs.unwrap_or(data.len()).min(data.len());

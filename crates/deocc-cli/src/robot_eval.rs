@@ -65,10 +65,10 @@ fn grasp_chains(
     .map(|(name, chain)| deocc_eval::ChainRow::new(name, chain))
     .collect();
     rows[1].name = deocc_eval::RULES_WIDTH_CAP_ROW.into();
-    rows[1].options = Some(deocc_pipeline::PipelineOptions {
-        rules_max_thickness_per_width: deocc_eval::RULES_WIDTH_CAP_FOR_ROBOT_TASKS,
-        ..opts.clone()
-    });
+    let mut capped = opts.clone();
+    let patch = capped.completers.entry("rules".into()).or_default();
+    patch.max_thickness_per_width = Some(deocc_eval::RULES_WIDTH_CAP_FOR_ROBOT_TASKS);
+    rows[1].options = Some(capped);
     Ok(rows)
 }
 

@@ -16,7 +16,8 @@ use crate::depth::DepthArgs;
 #[derive(Args)]
 pub struct RunArgs {
     /// Scene folder (rgb/, depth/, cameras.json, optional instances/), TUM RGB-D sequence
-    /// folder (rgb.txt, depth.txt, groundtruth.txt) or MCAP recording (.mcap).
+    /// folder (rgb.txt, depth.txt, groundtruth.txt), MCAP recording (.mcap) or MRPT rawlog of
+    /// RGB-D observations (.rawlog).
     input: Option<PathBuf>,
     #[command(flatten)]
     input_args: crate::input::InputArgs,

@@ -81,7 +81,7 @@ pub struct TrainArgs {
     mean_loss_weight: f32,
     /// Add the error head (the mean head's expected near- and far-side depth error, trained with
     /// a Laplace likelihood, the mean held fixed); needs --mean-head. The pipeline leaves out
-    /// points expected further off than `generated_max_expected_error_m`.
+    /// points expected further off than `completers.gldot.max_expected_error_m`.
     #[arg(long, requires = "mean_head")]
     error_head: bool,
     /// Weight of the error head's loss against the flow loss.

@@ -32,6 +32,7 @@
 //! ```
 
 pub mod crop;
+pub mod policy;
 pub mod priors;
 pub mod rules;
 
@@ -40,6 +41,7 @@ pub use crop::{
     SeenElsewhere,
 };
 pub use deocc_geometry::Provenance;
+pub use policy::{FusePatch, FusePolicy};
 pub use priors::MaskPrior;
 
 /// Why a completer could not complete a batch.
@@ -72,6 +74,11 @@ pub trait Completer: Send + Sync {
     fn uses_steps(&self) -> bool {
         false
     }
+    /// How its answers are fused ([`FusePolicy`]): the caps, floors and fallbacks that suit its
+    /// errors. By default the policy of its provenance ([`FusePolicy::for_provenance`]).
+    fn fuse_policy(&self) -> FusePolicy {
+        FusePolicy::for_provenance(self.provenance())
+    }
     /// Completes a batch of crops at [`Completer::resolution`], one completion per request, in
     /// order. Deterministic for given options.
     fn complete(
@@ -81,15 +88,18 @@ pub trait Completer: Send + Sync {
     ) -> Result<Vec<CropCompletion>, CompletionError>;
 }
 
-/// Completers tried in order: each crop goes to the first that does not decline it.
+/// Completers tried in order: each crop goes to the first that does not decline it. Each link
+/// carries its own [`FusePolicy`], its completer's unless changed ([`CompleterChain::patch`]).
 #[derive(Default)]
 pub struct CompleterChain {
     links: Vec<Box<dyn Completer>>,
+    policies: Vec<FusePolicy>,
 }
 
 impl CompleterChain {
     pub fn new(links: Vec<Box<dyn Completer>>) -> Self {
-        Self { links }
+        let policies = links.iter().map(|c| c.fuse_policy()).collect();
+        Self { links, policies }
     }
 
     pub fn single(completer: impl Completer + 'static) -> Self {
@@ -98,12 +108,31 @@ impl CompleterChain {
 
     /// Appends a completer that takes what the others decline.
     pub fn then(mut self, completer: impl Completer + 'static) -> Self {
+        self.policies.push(completer.fuse_policy());
         self.links.push(Box::new(completer));
         self
     }
 
     pub fn links(&self) -> &[Box<dyn Completer>] {
         &self.links
+    }
+
+    /// Link `k`'s fusion policy.
+    pub fn policy(&self, k: usize) -> FusePolicy {
+        self.policies[k]
+    }
+
+    /// Changes the policy of every link named `name` (`*`: every link) by `patch`; returns how
+    /// many links it changed.
+    pub fn patch(&mut self, name: &str, patch: &FusePatch) -> usize {
+        let mut n = 0;
+        for (link, policy) in self.links.iter().zip(&mut self.policies) {
+            if name == "*" || link.name() == name {
+                *policy = patch.apply(*policy);
+                n += 1;
+            }
+        }
+        n
     }
 
     pub fn is_empty(&self) -> bool {

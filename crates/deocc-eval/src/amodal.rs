@@ -47,10 +47,10 @@ pub struct AmodalEvalOptions {
     /// Skip the cross-view run (half the time).
     pub skip_cross_view: bool,
     /// Median filter radius (pixels; 0 = off) of the model's near and far depth over its amodal
-    /// mask before scoring, as the pipeline's `generated_depth_median_px` does before fusion.
+    /// mask before scoring, as the pipeline's `completers.gldot.depth_median_px` does before fusion.
     pub depth_median_px: usize,
     /// The filter applies only to pairs whose crop is no wider than this (metres; 0 = every
-    /// pair), as the pipeline's `generated_depth_median_max_crop_m`: the pairs must carry
+    /// pair), as the pipeline's `completers.gldot.depth_median_max_crop_m`: the pairs must carry
     /// their crop width (`crop_width_m`, stored since it was added).
     pub depth_median_max_crop_m: f32,
 }
@@ -379,7 +379,7 @@ fn score_pair(
     let visible_px: Vec<usize> = (0..r * r).filter(|&p| vis[p]).collect();
     let hidden: Vec<usize> = (0..r * r).filter(|&p| truth[p] && !vis[p]).collect();
     let amodal: Vec<usize> = (0..r * r).filter(|&p| truth[p]).collect();
-    // The pipeline's rule (`PipelineOptions::generated_depth_median_for`).
+    // The pipeline's rule (`FusePolicy::depth_median_for`).
     let radius = depth_median_radius(
         opts.depth_median_px,
         opts.depth_median_max_crop_m,

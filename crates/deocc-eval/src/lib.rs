@@ -22,7 +22,7 @@ pub mod scenes;
 pub mod stats;
 
 /// The rules completer's silhouette-relative thickness cap at which it is strongest on the robot
-/// tasks (`rules_max_thickness_per_width`; the pipeline's default leaves it off, where the rules'
+/// tasks (`completers.rules.max_thickness_per_width`; the pipeline's default leaves it off, where the rules'
 /// hidden recall is highest). Chosen on tuning scenes (`deocc eval place --tuning --scenes 50`,
 /// `deocc eval grasp --tuning --scenes 60`, `--options` with the field at 1.0 and 0.75): the
 /// rules' placement IoU 0.869 (off) / 0.878 (1.0) / 0.899 (0.75), heavy top-1 at mu 0.4 0.735

@@ -362,7 +362,7 @@ pub struct CompleterRow {
     /// Generated points the mirror check left out (`gate_max_depth_spread_m`).
     pub points_spread_dropped: usize,
     /// Generated points left out as expected further off than the pipeline's
-    /// `generated_max_expected_error_m`.
+    /// `completers.gldot.max_expected_error_m`.
     pub points_uncertain_dropped: usize,
     /// Far-side points not generated because another frame observed the object's back there
     /// (`skip_observed_far_side`).

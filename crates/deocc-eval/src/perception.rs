@@ -157,6 +157,9 @@ pub fn segmenter_figures(
                 .map_or("unknown", |o| o.category.name());
             ious.add(category, iou, structure.contains(&t));
         }
+        for (_, l) in segment_losses(&pred, &truth, view.depth.data(), 50, &structure) {
+            ious.add_losses(&l);
+        }
         // Occlusion on predicted masks, judged by the majority ground-truth instance of each.
         let found = analyse_view(&pred, &view.depth);
         let mut majority: std::collections::HashMap<u16, std::collections::HashMap<u16, usize>> =
@@ -197,6 +200,8 @@ pub struct SegmenterIous {
     pub by_category: std::collections::BTreeMap<String, (f64, usize)>,
     objects: (f64, usize),
     all: (f64, usize),
+    /// Sum of the objects' [`SegmentLosses`] (floor and walls excluded) and their count.
+    losses: (SegmentLosses, usize),
 }
 
 impl SegmenterIous {
@@ -210,6 +215,27 @@ impl SegmenterIous {
         }
         self.all.0 += iou;
         self.all.1 += 1;
+    }
+    pub fn add_losses(&mut self, l: &SegmentLosses) {
+        let s = &mut self.losses.0;
+        s.hit += l.hit;
+        s.split += l.split;
+        s.unlabelled_with_depth += l.unlabelled_with_depth;
+        s.without_depth += l.without_depth;
+        s.spill += l.spill;
+        self.losses.1 += 1;
+    }
+    /// Mean [`SegmentLosses`] over object instances (floor and walls excluded).
+    pub fn mean_losses(&self) -> SegmentLosses {
+        let (s, n) = self.losses;
+        let n = n.max(1) as f64;
+        SegmentLosses {
+            hit: s.hit / n,
+            split: s.split / n,
+            unlabelled_with_depth: s.unlabelled_with_depth / n,
+            without_depth: s.without_depth / n,
+            spill: s.spill / n,
+        }
     }
     /// Mean over object instances (floor and walls excluded).
     pub fn miou_objects(&self) -> f64 {
@@ -265,6 +291,10 @@ pub struct PerceptionReport {
     pub segmenter_views_per_second: f64,
     /// Segmenter mIoU per category (floor and walls included).
     pub segmenter_miou_by_category: std::collections::BTreeMap<String, f64>,
+    /// Where the objects' pixels went in the segmenter's maps (means over objects): in the best
+    /// segment, in other segments, unlabelled, without depth, and the best segment's share
+    /// outside the object.
+    pub segmenter_losses: SegmentLosses,
     pub hollow_back_chairs: Option<FailureCaseFigures>,
 }
 
@@ -392,6 +422,7 @@ pub fn perception_benchmark(
         // Includes the occlusion analysis and scoring: a lower bound on the segmenter alone.
         segmenter_views_per_second: seg_views as f64 / seg_time.max(1e-9),
         segmenter_miou_by_category: seg_ious.per_category(),
+        segmenter_losses: seg_ious.mean_losses(),
         hollow_back_chairs: (failure_scenes > 0)
             .then(|| failure_case(failure_scenes, sensor, clean, tick))
             .transpose()?,
@@ -462,10 +493,122 @@ pub fn matched_ious(
     out
 }
 
+/// Where an object's pixels went in a segmenter's map, as shares of its true visible mask
+/// (`hit + split + unlabelled_with_depth + without_depth = 1`), and how much of its best segment
+/// lies outside it (`spill`): what separates a low IoU caused by cutting (split), by leaving
+/// pixels out (unlabelled, or no depth: a sensor's holes) and by merging (spill).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct SegmentLosses {
+    pub hit: f64,
+    pub split: f64,
+    pub unlabelled_with_depth: f64,
+    pub without_depth: f64,
+    pub spill: f64,
+}
+
+/// [`SegmentLosses`] of every true instance of at least `min_px` pixels not in `skip`, by id.
+pub fn segment_losses(
+    predicted: &InstanceMap,
+    truth: &InstanceMap,
+    depth: &[f32],
+    min_px: usize,
+    skip: &[u16],
+) -> Vec<(u16, SegmentLosses)> {
+    use std::collections::HashMap;
+    let mut inter: HashMap<(u16, u16), usize> = HashMap::new();
+    let mut area_t: HashMap<u16, usize> = HashMap::new();
+    let mut area_p: HashMap<u16, usize> = HashMap::new();
+    let mut unlabelled: HashMap<u16, (usize, usize)> = HashMap::new();
+    for ((&t, &p), &z) in truth.ids.iter().zip(&predicted.ids).zip(depth) {
+        if t != 0 {
+            *area_t.entry(t).or_default() += 1;
+            if p == 0 {
+                let u = unlabelled.entry(t).or_default();
+                if z > 0.0 {
+                    u.0 += 1;
+                } else {
+                    u.1 += 1;
+                }
+            }
+        }
+        if p != 0 {
+            *area_p.entry(p).or_default() += 1;
+            if t != 0 {
+                *inter.entry((t, p)).or_default() += 1;
+            }
+        }
+    }
+    let mut out: Vec<(u16, SegmentLosses)> = area_t
+        .iter()
+        .filter(|(t, &a)| a >= min_px && !skip.contains(t))
+        .map(|(&t, &a)| {
+            let mut best: Option<(f64, u16, usize)> = None;
+            let mut labelled = 0;
+            for (&(tt, p), &i) in &inter {
+                if tt != t {
+                    continue;
+                }
+                labelled += i;
+                let iou = i as f64 / (a + area_p[&p] - i) as f64;
+                if best.is_none_or(|b| iou > b.0) {
+                    best = Some((iou, p, i));
+                }
+            }
+            let (u, n) = unlabelled.get(&t).copied().unwrap_or_default();
+            let a = a as f64;
+            let (hit, spill) = best.map_or((0.0, 0.0), |(_, p, i)| {
+                (i as f64 / a, 1.0 - i as f64 / area_p[&p] as f64)
+            });
+            let l = SegmentLosses {
+                hit,
+                split: labelled as f64 / a - hit,
+                unlabelled_with_depth: u as f64 / a,
+                without_depth: n as f64 / a,
+                spill,
+            };
+            (t, l)
+        })
+        .collect();
+    out.sort_by_key(|&(t, _)| t);
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::Point3;
+
+    #[test]
+    fn segment_losses_account_for_every_pixel() {
+        // One true object of 8 pixels: 4 in segment 1 (which also covers 4 background pixels),
+        // 2 in segment 2, 1 unlabelled with depth, 1 without depth.
+        let truth = InstanceMap {
+            width: 4,
+            height: 4,
+            ids: vec![5, 5, 5, 5, 5, 5, 5, 5, 0, 0, 0, 0, 0, 0, 0, 0],
+        };
+        let pred = InstanceMap {
+            width: 4,
+            height: 4,
+            ids: vec![1, 1, 1, 1, 2, 2, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0],
+        };
+        let mut depth = vec![1.0; 16];
+        depth[7] = 0.0;
+        let l = segment_losses(&pred, &truth, &depth, 1, &[]);
+        assert_eq!(l.len(), 1);
+        let (t, l) = l[0];
+        assert_eq!(t, 5);
+        assert_eq!(
+            l,
+            SegmentLosses {
+                hit: 0.5,
+                split: 0.25,
+                unlabelled_with_depth: 0.125,
+                without_depth: 0.125,
+                spill: 0.5,
+            }
+        );
+    }
 
     #[test]
     fn ari_of_known_partitions() {

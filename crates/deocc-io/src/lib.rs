@@ -26,6 +26,7 @@ pub mod mesh;
 pub mod npy;
 pub mod pairs;
 pub mod ply;
+pub mod rawlog;
 pub mod scene;
 pub mod tum;
 pub mod weights;

@@ -84,7 +84,7 @@ pub struct GlDotConfig {
     /// widths), trained with a Laplace likelihood against the mean head's own error (the mean
     /// held fixed, so the head learns how far off the mean is, not to move it). The pipeline
     /// turns it into metres with the depth fit's scale and leaves out points expected further
-    /// off than its limit (`generated_max_expected_error_m`).
+    /// off than its limit (`completers.gldot.max_expected_error_m`).
     #[serde(default)]
     pub error_head: bool,
 }

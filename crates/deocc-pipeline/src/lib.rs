@@ -47,7 +47,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
 use deocc_completion::rules::RulesCompleter;
-use deocc_completion::{CompleterChain, Provenance};
+use deocc_completion::{Completer, CompleterChain, Provenance};
 use deocc_geometry::voxel::fuse_generated;
 use deocc_geometry::PointCloud;
 
@@ -148,6 +148,7 @@ pub fn run_observed(
     observer: &dyn Observer,
 ) -> Result<PipelineOutput, PipelineError> {
     opts.validate()?;
+    opts.check_links(chain)?;
     let t_all = Instant::now();
     let mut timings = StageTimings::default();
     let (filled, depth_fill) = fill_depth_first(scene, opts)?;
@@ -158,29 +159,24 @@ pub fn run_observed(
     let observed = reconstruct::reconstruct(scene, opts.observed_voxel_m)?;
     timings.reconstruct_s = t.elapsed().as_secs_f64();
     enter(observer, "occlusion")?;
-
     let t = Instant::now();
     let (occlusion, found, popts, to_complete) = occlusion_and_targets(scene, opts);
     timings.occlusion_s = t.elapsed().as_secs_f64();
     enter(observer, "select_views")?;
-
     let t = Instant::now();
     let stats: Vec<_> = scene.frames.iter().map(stats::view_stats).collect();
     let selected = views::select_all(scene, &stats, &to_complete, opts);
     timings.select_views_s = t.elapsed().as_secs_f64();
     enter(observer, "complete")?;
-
     let t = Instant::now();
     let (completed_crops, declined) =
         complete::complete_instances(scene, &stats, &selected, chain, opts, observer)?;
     timings.complete_s = t.elapsed().as_secs_f64();
     enter(observer, "fuse")?;
-
     // The plane fill first: the support and revolve stages stand objects on it; it joins last.
     let t = Instant::now();
     let fill = planes::plane_fill(scene, opts.complete_planes, found.as_ref(), &popts);
     timings.planes_s = t.elapsed().as_secs_f64();
-
     let t = Instant::now();
     let (generated, records) = fuse_completions(scene, chain, opts, &completed_crops, &declined);
     let run = (scene, opts, registration);
@@ -189,7 +185,6 @@ pub fn run_observed(
     let completed = fuse_generated(&observed, &generated, opts.fusion_voxel_m)?;
     timings.fuse_s = t.elapsed().as_secs_f64();
     enter(observer, "planes")?;
-
     let t = Instant::now();
     let completed = join_plane_fill(completed, &fill, opts)?;
     timings.planes_s += t.elapsed().as_secs_f64();
@@ -320,6 +315,7 @@ fn fuse_completions(
     let projectors: Vec<_> = scene.frames.iter().map(|f| f.camera.projector()).collect();
     for c in completed_crops {
         let link = &chain.links()[c.completer];
+        let policy = opts.fuse_policy(link.name(), chain.policy(c.completer));
         let (mut cloud, mut rec, left_out) = fuse::fuse_completion_detailed(
             &c.window,
             &c.condition.visible,
@@ -332,41 +328,25 @@ fn fuse_completions(
                     spread,
                     max_m: opts.gate_max_depth_spread_m,
                 }),
-                // The rules' depth is smooth already (planes and mirrored surfaces), where a
-                // median only bends the silhouette's edge.
-                median_px: if link.provenance() == Provenance::Model {
-                    opts.generated_depth_median_for(c.window.metric_scale_m)
-                } else {
-                    0
-                },
-                max_thickness_m: match link.provenance() {
-                    Provenance::Model => opts.generated_max_thickness_m,
-                    Provenance::Rules => opts.rules_max_thickness_m,
-                    _ => 0.0,
-                },
-                max_thickness_per_width: match link.provenance() {
-                    Provenance::Model => opts.generated_max_thickness_per_width,
-                    Provenance::Rules => opts.rules_max_thickness_per_width,
-                    _ => 0.0,
-                },
+                median_px: policy.depth_median_for(c.window.metric_scale_m),
+                max_thickness_m: policy.max_thickness_m,
+                max_thickness_per_width: policy.max_thickness_per_width,
                 seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
                 // Only made when `skip_observed_far_side` is set (complete.rs).
                 seen_behind: c.seen_behind.as_deref(),
-                min_revealed_confidence: match link.provenance() {
-                    Provenance::Model => opts.generated_min_revealed_confidence,
-                    _ => 0.0,
-                },
-                max_expected_error_m: opts.generated_max_expected_error_m,
+                min_revealed_confidence: policy.min_revealed_confidence,
+                max_expected_error_m: policy.max_expected_error_m,
                 only: None,
             },
         );
         // The pixels the model expected too far off, completed by the rules instead.
-        let fallback = (opts.generated_uncertain_to_rules && rec.accepted && left_out.count() > 0)
-            .then(|| {
+        let fallback =
+            (policy.uncertain_to_rules && rec.accepted && left_out.count() > 0).then(|| {
                 let rules = RulesCompleter {
                     resolution: c.window.resolution,
                     ..Default::default()
                 };
+                let rules_policy = opts.fuse_policy(rules.name(), rules.fuse_policy());
                 fuse::fuse_completion(
                     &c.window,
                     &c.condition.visible,
@@ -375,8 +355,8 @@ fn fuse_completions(
                     "rules (where the model expected to be off)",
                     Provenance::Rules,
                     &fuse::FuseOptions {
-                        max_thickness_m: opts.rules_max_thickness_m,
-                        max_thickness_per_width: opts.rules_max_thickness_per_width,
+                        max_thickness_m: rules_policy.max_thickness_m,
+                        max_thickness_per_width: rules_policy.max_thickness_per_width,
                         seen_elsewhere: c.condition.seen_elsewhere.as_ref().map(|s| &s.depth[..]),
                         seen_behind: c.seen_behind.as_deref(),
                         only: Some(&left_out),

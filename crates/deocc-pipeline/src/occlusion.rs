@@ -71,6 +71,16 @@ pub fn analyse_view(instances: &InstanceMap, depth: &DepthMap) -> Vec<MaskOcclus
                 }
                 let j = nv as usize * w + nu as usize;
                 let b = ids[j];
+                // Across a band without depth (each pair once: forward directions only). The
+                // band may begin inside this mask: with masks that cover the emitter's shadow
+                // (ground truth, or a segmenter that labels it), the farther object's mask holds
+                // the band, and its depth pixels meet the band inside their own mask.
+                if d[i] > 0.0 && d[j] <= 0.0 && du >= 0 && dv >= 0 {
+                    if let Some((c, k)) = across_band(ids, d, w, h, (u, v), (du, dv), a, band) {
+                        steps.entry((a, c)).or_default().push(d[i] - d[k]);
+                        steps.entry((c, a)).or_default().push(d[k] - d[i]);
+                    }
+                }
                 if b == a {
                     continue;
                 }
@@ -78,13 +88,6 @@ pub fn analyse_view(instances: &InstanceMap, depth: &DepthMap) -> Vec<MaskOcclus
                 e.0 += 1;
                 if d[j] <= 0.0 || d[i] <= 0.0 {
                     e.1 += 1;
-                    // Across a band without depth (each pair once: forward directions only).
-                    if d[i] > 0.0 && d[j] <= 0.0 && du >= 0 && dv >= 0 {
-                        if let Some((c, k)) = across_band(ids, d, w, h, (u, v), (du, dv), a, band) {
-                            steps.entry((a, c)).or_default().push(d[i] - d[k]);
-                            steps.entry((c, a)).or_default().push(d[k] - d[i]);
-                        }
-                    }
                     continue;
                 }
                 if b != 0 && du >= 0 && dv >= 0 {
@@ -239,11 +242,33 @@ mod tests {
     #[test]
     fn the_depth_order_is_judged_across_a_shadow_band() {
         // The band is the far object's (ground-truth masks), or nobody's (a segmenter's).
+        // Mirrored too: the far object on the left, the band inside its own mask, so the
+        // crossing begins inside the farther mask (the projector's shadow falls on either side
+        // of a near edge, depending on where the projector sits).
         for band_id in [2, 0] {
-            let (map, depth) = pair(8, band_id);
-            let m = analyse_view(&map, &depth);
-            assert_eq!(occluded(&m, 2), vec![1], "band of {band_id}");
-            assert!(occluded(&m, 1).is_empty());
+            for mirrored in [false, true] {
+                let (mut map, depth) = pair(8, band_id);
+                let depth = if mirrored {
+                    let w = map.width as usize;
+                    for row in map.ids.chunks_mut(w) {
+                        row.reverse();
+                    }
+                    let mut d = depth.data().to_vec();
+                    for row in d.chunks_mut(w) {
+                        row.reverse();
+                    }
+                    DepthMap::new(map.width, map.height, d).unwrap()
+                } else {
+                    depth
+                };
+                let m = analyse_view(&map, &depth);
+                assert_eq!(
+                    occluded(&m, 2),
+                    vec![1],
+                    "band of {band_id}, mirrored {mirrored}"
+                );
+                assert!(occluded(&m, 1).is_empty());
+            }
         }
         // Wider than the widest band crossed (400 / 40 = 10 px here): no verdict.
         let (map, depth) = pair(11, 0);

@@ -3,6 +3,9 @@
 
 use std::path::Path;
 
+use std::collections::BTreeMap;
+
+use deocc_completion::{FusePatch, FusePolicy};
 use serde::{Deserialize, Serialize};
 
 use crate::PipelineError;
@@ -89,49 +92,12 @@ pub struct PipelineOptions {
     /// than this ([`crate::complete::DepthSpread`]). A point-wise quality gate: where the answer
     /// depends on which way the crop faces, the completer does not know the depth.
     pub gate_max_depth_spread_m: f32,
-    /// Median filter radius, pixels of the crop (0 = off), of a learned completer's near and
-    /// far depth over its amodal mask before fusion ([`crate::fuse::median_within`]): its
-    /// per-pixel depth is rough, and a rough hidden side gives a grasp planner normals that
-    /// point anywhere. Completions of model provenance only (the rules' are smooth).
-    pub generated_depth_median_px: usize,
-    /// The median filter applies only to crops no wider than this (metres at the object's
-    /// median visible depth; 0 = every crop): table-top objects, whose rough hidden side a
-    /// grasp planner meets, not furniture, where it costs hidden recall (docs/decisions.md).
-    pub generated_depth_median_max_crop_m: f32,
-    /// Thickness cap (metres; 0 = off) of a learned completer's far side: a far-side point more
-    /// than this behind its near side (observed or generated) is not generated. The model's
-    /// deep far sides are mostly furniture rays that leave through a far leg or edge, and most
-    /// of them miss every true surface (docs/decisions.md).
-    pub generated_max_thickness_m: f32,
-    /// Thickness cap of a learned completer's far side relative to the silhouette (0 = off): a
-    /// far-side point more than this many times the width of its amodal row run (in metres)
-    /// behind its near side is not generated ([`GENERATED_MAX_THICKNESS_PER_WIDTH`]): the
-    /// model gives thin legs, posts and fragments deep backs that lie in empty space.
-    pub generated_max_thickness_per_width: f32,
-    /// The same cap (metres; 0 = off) on the rules completer's far side, its near side
-    /// mirrored ([`RULES_MAX_THICKNESS_M`]): a mirror of a chair's or a table's near side puts
-    /// most of its points in empty space.
-    pub rules_max_thickness_m: f32,
-    /// The silhouette-relative cap (0 = off) on the rules completer's far side
-    /// ([`RULES_MAX_THICKNESS_PER_WIDTH`]): its mirrored back no deeper behind the near side than
-    /// this many times the width of its amodal row run, as for a learned completer.
-    pub rules_max_thickness_per_width: f32,
-    /// A learned completer's revealed pixels (hidden here, no other view's observation) whose
-    /// mask probability is below this generate no point, near side or far (0 = every pixel of
-    /// the amodal mask): a stricter cut for 3-D points than the mask threshold
-    /// ([`GENERATED_MIN_REVEALED_CONFIDENCE`]).
-    pub generated_min_revealed_confidence: f32,
-    /// A learned completer that estimates its own depth error (GL-DoT's error head) generates no
-    /// point it expects further off than this, in metres through the depth fit (0 = off; no
-    /// effect on completers without an estimate): the model's own precision per pixel, where a
-    /// crop width cut treats a well-known table top like a chair's open seat
-    /// ([`GENERATED_MAX_EXPECTED_ERROR_M`]).
-    pub generated_max_expected_error_m: f32,
-    /// With that limit set, the pixels it leaves out are completed by the rules completer
-    /// instead (its near and far side there, as rules points), so that the model abstains where
-    /// it expects to be off rather than leaving a hole ([`GENERATED_UNCERTAIN_TO_RULES`]; with
-    /// the limit at 0 nothing is left out and it has nothing to do).
-    pub generated_uncertain_to_rules: bool,
+    /// Changes to the chain links' fusion policies, by link name (`gldot`, `rules`; `*` for
+    /// every link, applied first): each field given replaces the link's own
+    /// ([`deocc_completion::FusePolicy`]: GL-DoT's thickness caps, confidence floor and expected-
+    /// error gate with the rules' fallback, [`FusePolicy::LEARNED`]; the rules' looser cap,
+    /// [`FusePolicy::RULES`]). Empty by default: every link fuses by its own policy.
+    pub completers: BTreeMap<String, FusePatch>,
     /// No far-side point is generated where another frame observed the object's back along the
     /// pixel's ray (its surface there faces away from this view; [`crate::crops::Elsewhere`]):
     /// that part of the back is in the cloud as an observation, and a generated copy of it can
@@ -160,58 +126,11 @@ pub const GATE_MAX_SEEN_THROUGH_FRACTION: f32 = 1.0;
 /// [`PipelineOptions::skip_observed_far_side`]'s default.
 pub const SKIP_OBSERVED_FAR_SIDE: bool = false;
 
-/// The thickness cap's default ([`PipelineOptions::generated_max_thickness_m`]), chosen on 20
-/// bench-v1-like tuning scenes (`deocc eval objects --tuning --scenes 20`): GL-DoT's points
-/// within 2 cm of a true surface and the shipped chain's hidden recall, off 55.3% / 0.499,
-/// 0.15 m 59.8% / 0.497, 0.10 m 64.6% / 0.490, 0.08 m 66.5% / 0.480, 0.05 m 67.2% / 0.439.
-pub const GENERATED_MAX_THICKNESS_M: f32 = 0.10;
-
-/// The silhouette-relative thickness cap's default
-/// ([`PipelineOptions::generated_max_thickness_per_width`]), chosen on 20 bench-v1-like tuning
-/// scenes (`deocc eval objects --tuning --scenes 20 --options F`): GL-DoT's points, their share
-/// within 2 cm of a true surface and the shipped chain's hidden recall, off 16.4k 77.5% 0.490,
-/// 1.5 15.6k 78.5% 0.488, 1.0 14.0k 79.7% 0.487, 0.75 11.9k 79.0% 0.481 (docs/decisions.md).
-pub const GENERATED_MAX_THICKNESS_PER_WIDTH: f32 = 1.0;
-
 /// The outside-the-room carve's default margin ([`PipelineOptions::carve_outside_bounding_planes_m`]),
 /// measured on 20 bench-v1-like tuning scenes (`deocc eval objects --tuning --scenes 20`): GL-DoT's
 /// points within 2 cm of a true surface 71.0% -> 72.5%, the rules' 65.5% -> 67.3%, the shipped
 /// chain's hidden recall 0.492 either way.
 pub const CARVE_OUTSIDE_BOUNDING_PLANES_M: f32 = 0.02;
-
-/// The rules completer's silhouette-relative thickness cap
-/// ([`PipelineOptions::rules_max_thickness_per_width`]).
-pub const RULES_MAX_THICKNESS_PER_WIDTH: f32 = 0.0;
-
-/// The rules completer's thickness cap ([`PipelineOptions::rules_max_thickness_m`]), chosen on
-/// the same 20 tuning scenes (`--options` with `{"rules_max_thickness_m": X}`): the rules row's
-/// points, their share within 2 cm of a true surface and its hidden recall, off 62.8k 41.6%
-/// 0.424, 0.15 m 38.4k 63.0% 0.422, 0.10 m 34.8k 67.3% 0.417, 0.08 m 29.4k 70.6% 0.407: the
-/// largest cap that keeps the baseline's recall. The shipped chain's rules points (crops over
-/// 0.6 m) 35.7% -> 66.3% within 2 cm at 0.15 m, its recall 0.490 at every cap.
-pub const RULES_MAX_THICKNESS_M: f32 = 0.15;
-
-/// The confidence floor of a learned completer's revealed pixels
-/// ([`PipelineOptions::generated_min_revealed_confidence`]), chosen on 20 bench-v1-like tuning
-/// scenes (`deocc eval objects --tuning --scenes 20 --options F`): GL-DoT's points, their share
-/// within 2 cm of the true surface and the shipped chain's hidden recall (furniture's), off 25.6k
-/// 74.7% 0.492 (0.115), 0.9 17.5k 77.5% 0.489 (0.108), 0.97 13.7k 78.4% 0.488 (0.105). The
-/// revealed pixels the model doubts are mostly the open space of chairs and tables (over a
-/// seat, under a top between the legs); 0.9 keeps furniture's recall above the rules' (+9.2%
-/// [+3.6%, +15.9%]), 0.97 does not (+5.8% [-0.4%, +13.0%]).
-pub const GENERATED_MIN_REVEALED_CONFIDENCE: f32 = 0.9;
-
-/// The error head's limit ([`PipelineOptions::generated_max_expected_error_m`]), 3 cm, with the
-/// rules completing what it leaves out ([`GENERATED_UNCERTAIN_TO_RULES`]). Measured with v19
-/// (v18 with the error head; docs/decisions.md): alone, at 0.03 m GL-DoT's points within 2 cm
-/// of a true surface 80.4% -> 82.2% on the test split, the chain's recall over the rules
-/// +12.6% -> +10.2%, furniture's from above the rules to 2.1% under. With the
-/// silhouette-relative thickness cap and the rules' fallback: 82.9% -> 86.5%, +11.9% -> +10.2%,
-/// furniture level with the rules: both of issue 18's goals.
-pub const GENERATED_MAX_EXPECTED_ERROR_M: f32 = 0.03;
-
-/// [`PipelineOptions::generated_uncertain_to_rules`]'s default: on.
-pub const GENERATED_UNCERTAIN_TO_RULES: bool = true;
 
 impl Default for PipelineOptions {
     fn default() -> Self {
@@ -240,15 +159,7 @@ impl Default for PipelineOptions {
             gate_min_mean_confidence: GATE_MIN_MEAN_CONFIDENCE,
             gate_max_seen_through_fraction: GATE_MAX_SEEN_THROUGH_FRACTION,
             gate_max_depth_spread_m: 0.0,
-            generated_depth_median_px: 0,
-            generated_depth_median_max_crop_m: 0.0,
-            generated_max_thickness_m: GENERATED_MAX_THICKNESS_M,
-            generated_max_thickness_per_width: GENERATED_MAX_THICKNESS_PER_WIDTH,
-            rules_max_thickness_m: RULES_MAX_THICKNESS_M,
-            rules_max_thickness_per_width: RULES_MAX_THICKNESS_PER_WIDTH,
-            generated_min_revealed_confidence: GENERATED_MIN_REVEALED_CONFIDENCE,
-            generated_max_expected_error_m: GENERATED_MAX_EXPECTED_ERROR_M,
-            generated_uncertain_to_rules: GENERATED_UNCERTAIN_TO_RULES,
+            completers: BTreeMap::new(),
             skip_observed_far_side: SKIP_OBSERVED_FAR_SIDE,
             fill_depth_max_gap_px: 0,
             depth_clean: crate::depth_clean::DepthCleanOptions::default(),
@@ -263,15 +174,7 @@ fn bad(field: &'static str, msg: impl Into<String>) -> PipelineError {
     }
 }
 
-/// The median filter's rule: `radius_px` for a crop no wider than `max_crop_m` (0 = any
-/// width), else 0 (a crop of unknown width, NaN, is filtered only without a limit).
-pub fn depth_median_radius(radius_px: usize, max_crop_m: f32, crop_width_m: f32) -> usize {
-    if max_crop_m <= 0.0 || crop_width_m <= max_crop_m {
-        radius_px
-    } else {
-        0
-    }
-}
+pub use deocc_completion::policy::depth_median_radius;
 
 /// The far-side caps of [`PipelineOptions::for_placing`]: every completer's far side (learned and
 /// rules) no deeper than this many times its amodal row run's width, and no deeper than
@@ -287,24 +190,49 @@ impl PipelineOptions {
     /// are: a far side put too deep blocks a footprint's worth of free table around it, one put
     /// too shallow costs only the strip behind the object. Chosen on place-v1 tuning scenes
     /// (docs/decisions.md); for grasping, where the planner needs the back, the defaults stay.
-    pub fn for_placing(self) -> Self {
-        Self {
-            generated_max_thickness_per_width: PLACING_MAX_THICKNESS_PER_WIDTH,
-            generated_max_thickness_m: PLACING_MAX_THICKNESS_M,
-            rules_max_thickness_per_width: PLACING_MAX_THICKNESS_PER_WIDTH,
-            rules_max_thickness_m: PLACING_MAX_THICKNESS_M,
-            ..self
-        }
+    pub fn for_placing(mut self) -> Self {
+        let thin = FusePatch {
+            max_thickness_m: Some(PLACING_MAX_THICKNESS_M),
+            max_thickness_per_width: Some(PLACING_MAX_THICKNESS_PER_WIDTH),
+            ..FusePatch::default()
+        };
+        let every = self.completers.entry("*".into()).or_default();
+        *every = every.then(&thin);
+        self
     }
 
-    /// The median filter's radius for a learned completion of a crop `crop_width_m` wide
-    /// (`generated_depth_median_px` within `generated_depth_median_max_crop_m`, else 0).
-    pub fn generated_depth_median_for(&self, crop_width_m: f32) -> usize {
-        depth_median_radius(
-            self.generated_depth_median_px,
-            self.generated_depth_median_max_crop_m,
-            crop_width_m,
-        )
+    /// Refuses a [`Self::completers`] entry that names no link of `chain` and no shipped
+    /// completer ([`deocc_completion::policy::SHIPPED_LINKS`]): a misspelt link would change
+    /// nothing without a word. `*` names every link.
+    pub fn check_links(
+        &self,
+        chain: &deocc_completion::CompleterChain,
+    ) -> Result<(), PipelineError> {
+        for name in self.completers.keys() {
+            let known = name == "*"
+                || deocc_completion::policy::SHIPPED_LINKS.contains(&name.as_str())
+                || chain.links().iter().any(|l| l.name() == name);
+            if !known {
+                return Err(bad(
+                    "completers",
+                    format!(
+                        "completers.{name}: no completer of the chain ({}) nor a shipped one \
+                         ({}) is called {name:?}",
+                        chain.describe(),
+                        deocc_completion::policy::SHIPPED_LINKS.join(", ")
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The fusion policy of a chain link named `name` whose own policy is `own`: the `*` patch,
+    /// then the link's own patch, applied to it.
+    pub fn fuse_policy(&self, name: &str, own: FusePolicy) -> FusePolicy {
+        let every = self.completers.get("*").copied().unwrap_or_default();
+        let named = self.completers.get(name).copied().unwrap_or_default();
+        every.then(&named).apply(own)
     }
 
     /// Reads options from a JSON file: missing fields take their defaults, unknown fields and
@@ -388,10 +316,6 @@ impl PipelineOptions {
         for (field, v) in [
             ("gate_min_mean_confidence", self.gate_min_mean_confidence),
             (
-                "generated_min_revealed_confidence",
-                self.generated_min_revealed_confidence,
-            ),
-            (
                 "gate_max_seen_through_fraction",
                 self.gate_max_seen_through_fraction,
             ),
@@ -402,45 +326,21 @@ impl PipelineOptions {
         }
         for (field, v) in [
             ("gate_max_depth_spread_m", self.gate_max_depth_spread_m),
-            ("generated_max_thickness_m", self.generated_max_thickness_m),
-            ("rules_max_thickness_m", self.rules_max_thickness_m),
-            (
-                "generated_max_expected_error_m",
-                self.generated_max_expected_error_m,
-            ),
             (
                 "carve_outside_bounding_planes_m",
                 self.carve_outside_bounding_planes_m,
-            ),
-            (
-                "generated_depth_median_max_crop_m",
-                self.generated_depth_median_max_crop_m,
             ),
         ] {
             if !(0.0..=10.0).contains(&v) {
                 return Err(bad(field, format!("{v} m is outside [0, 10] m (0 = off)")));
             }
         }
-        for (field, w) in [(
-            "rules_max_thickness_per_width",
-            self.rules_max_thickness_per_width,
-        )] {
-            if !(0.0..=100.0).contains(&w) {
-                return Err(bad(field, format!("{w} is outside [0, 100] (0 = off)")));
+        for (name, patch) in &self.completers {
+            // Checked on the policy it makes of a link that has nothing capped: each value
+            // given must be in its range.
+            if let Err(why) = patch.apply(FusePolicy::NONE).validate() {
+                return Err(bad("completers", format!("completers.{name}.{why}")));
             }
-        }
-        let w = self.generated_max_thickness_per_width;
-        if !(0.0..=100.0).contains(&w) {
-            return Err(bad(
-                "generated_max_thickness_per_width",
-                format!("{w} is outside [0, 100] (0 = off)"),
-            ));
-        }
-        if self.generated_depth_median_px > 16 {
-            return Err(bad(
-                "generated_depth_median_px",
-                format!("{} is outside 0..=16", self.generated_depth_median_px),
-            ));
         }
         Ok(())
     }

@@ -47,7 +47,8 @@ impl Range {
     }
 }
 
-/// One option: its JSON name (nested ones as `parent.child`), range and meaning.
+/// One option: its JSON name (nested ones as `parent.child`; a chain link's fusion policy as
+/// `completers.NAME.field`, NAME a link's name or `*`), range and meaning.
 #[derive(Debug, Clone, Serialize)]
 pub struct OptionHelp {
     pub name: &'static str,
@@ -103,15 +104,13 @@ pub const OPTIONS: &[OptionHelp] = &[
     row!("gate_min_mean_confidence", f(0.0, 1.0), "quality gate: drop a completion whose mean confidence is below this (0 = never)"),
     row!("gate_max_seen_through_fraction", f(0.0, 1.0), "quality gate: drop a completion the views saw through more than this share of (1 = never)"),
     row!("gate_max_depth_spread_m", f(0.0, 10.0), "mirror check: leave out points whose mirrored answer's depth differs by more (0 = off), metres"),
-    row!("generated_depth_median_px", i(0, 16), "median filter radius of a learned completer's depth, crop pixels (0 = off)"),
-    row!("generated_depth_median_max_crop_m", f(0.0, 10.0), "the median filter only on crops no wider than this (0 = every crop), metres"),
-    row!("generated_max_thickness_m", f(0.0, 10.0), "a learned completer's far side at most this far behind its near side (0 = off), metres"),
-    row!("generated_max_thickness_per_width", f(0.0, 100.0), "... and at most this many times its silhouette's row width behind (0 = off)"),
-    row!("rules_max_thickness_m", f(0.0, 10.0), "the rules completer's far side at most this far behind its near side (0 = off), metres"),
-    row!("rules_max_thickness_per_width", f(0.0, 100.0), "... and at most this many times its silhouette's row width behind (0 = off)"),
-    row!("generated_min_revealed_confidence", f(0.0, 1.0), "a learned completer's revealed pixels below this mask probability generate nothing"),
-    row!("generated_max_expected_error_m", f(0.0, 10.0), "leave out generated points expected further off than this (error head; 0 = off), metres"),
-    row!("generated_uncertain_to_rules", Range::Bool, "the rules completer fills the pixels the expected-error limit leaves out"),
+    row!("completers.NAME.depth_median_px", i(0, 16), "median filter radius of the link's depth, crop pixels (0 = off)"),
+    row!("completers.NAME.depth_median_max_crop_m", f(0.0, 10.0), "the median filter only on crops no wider than this (0 = every crop), metres"),
+    row!("completers.NAME.max_thickness_m", f(0.0, 10.0), "the link's far side at most this far behind its near side (0 = off), metres"),
+    row!("completers.NAME.max_thickness_per_width", f(0.0, 100.0), "... and at most this many times its silhouette's row width behind (0 = off)"),
+    row!("completers.NAME.min_revealed_confidence", f(0.0, 1.0), "revealed pixels below this mask probability generate nothing"),
+    row!("completers.NAME.max_expected_error_m", f(0.0, 10.0), "leave out generated points expected further off than this (error head; 0 = off), metres"),
+    row!("completers.NAME.uncertain_to_rules", Range::Bool, "the rules completer fills the pixels the expected-error limit leaves out"),
     row!("skip_observed_far_side", Range::Bool, "generate no far side where another frame saw the object's back"),
     row!("fill_depth_max_gap_px", i(0, 64), "fill unmeasured depth between measured pixels at most this far apart (0 = off)"),
     row!("depth_clean.enabled", Range::Bool, "the depth front end: outliers, flying pixels and specks removed, surfaces smoothed"),
@@ -122,12 +121,29 @@ pub const OPTIONS: &[OptionHelp] = &[
     row!("depth_clean.radius", i(0, 8), "smoothing window radius, pixels"),
 ];
 
-/// Every option's name, range, default (as JSON) and meaning.
+/// The links' own policies, as the defaults of the `completers.NAME.*` rows.
+fn link_defaults() -> serde_json::Value {
+    serde_json::json!({
+        "gldot": deocc_completion::FusePolicy::LEARNED,
+        "rules": deocc_completion::FusePolicy::RULES,
+    })
+}
+
+/// Every option's name, range, default (as JSON) and meaning; a link policy's row gives each
+/// shipped link's own value (`{"gldot": .., "rules": ..}`).
 pub fn table() -> Vec<(OptionHelp, serde_json::Value)> {
     let defaults = serde_json::to_value(PipelineOptions::default()).expect("options serialise");
+    let links = link_defaults();
     OPTIONS
         .iter()
         .map(|o| {
+            if let Some(field) = o.name.strip_prefix("completers.NAME.") {
+                let by_link = serde_json::json!({
+                    "gldot": links["gldot"][field],
+                    "rules": links["rules"][field],
+                });
+                return (o.clone(), by_link);
+            }
             let mut v = &defaults;
             for part in o.name.split('.') {
                 v = &v[part];
@@ -145,7 +161,9 @@ pub fn markdown() -> String {
          of them in a JSON file for `deocc run --options FILE` (and `deocc batch`), in \
          `options_json` over gRPC, `options=` in Python or the ROS 2 bridge's `options` \
          parameter; missing fields keep their defaults, unknown ones are refused, every value \
-         is range-checked. The long reasons and measurements are in the field documentation of \
+         is range-checked. A chain link's fusion policy is changed by its name (`gldot`, \
+         `rules`, or `*` for every link): `{\"completers\": {\"gldot\": {\"max_thickness_m\": \
+         0.15}}}`; the default column gives each link's own value. The long reasons and measurements are in the field documentation of \
          `crates/deocc-pipeline/src/options.rs` and in docs/decisions.md.\n\n\
          | option | default | range | meaning |\n|---|---|---|---|\n",
     );
@@ -190,6 +208,10 @@ mod tests {
             "",
             &mut names,
         );
+        // The links' policies: every field of a policy, under NAME.
+        let mut policy = Vec::new();
+        leaves(&link_defaults()["gldot"], "completers.NAME", &mut policy);
+        names.extend(policy);
         names.sort();
         let mut rows: Vec<String> = OPTIONS.iter().map(|o| o.name.to_string()).collect();
         rows.sort();
@@ -200,7 +222,10 @@ mod tests {
     fn with(name: &str, value: serde_json::Value) -> Result<(), String> {
         let mut v = serde_json::to_value(PipelineOptions::default()).unwrap();
         let mut at = &mut v;
-        for part in name.split('.') {
+        for part in name.replace(".NAME.", ".gldot.").split('.') {
+            if at.is_null() {
+                *at = serde_json::json!({});
+            }
             at = &mut at[part];
         }
         *at = value;
@@ -218,7 +243,8 @@ mod tests {
             let refused = |v: serde_json::Value| {
                 let e = with(o.name, v.clone())
                     .expect_err(&format!("{} = {v} is outside its stated range", o.name));
-                assert!(e.contains(o.name), "{}: {e}", o.name);
+                let named = o.name.replace(".NAME.", ".gldot.");
+                assert!(e.contains(&named), "{}: {e}", o.name);
             };
             match o.range {
                 Range::Int { min, max } => {

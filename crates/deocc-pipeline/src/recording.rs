@@ -745,6 +745,7 @@ pub fn read_input(path: &Path, opts: &RecordingOptions) -> Result<SceneInput, Pi
             "a rosbag2 SQLite recording: convert it to MCAP first (`ros2 bag convert`, or record \
              with `ros2 bag record -s mcap`)",
         )),
+        Some("rawlog") if path.is_file() => Ok(deocc_io::rawlog::read_rawlog(path, &opts.pick)?),
         _ if path.is_dir() && deocc_io::tum::is_tum(path) => {
             Ok(deocc_io::tum::read_tum(path, &opts.pick)?)
         }

@@ -44,7 +44,7 @@ pub struct CompletionRecord {
     /// [`PipelineOptions::gate_max_depth_spread_m`] away (0 when the mirror check is off).
     pub spread_dropped: usize,
     /// Points not generated because the completer expected them further off than
-    /// [`PipelineOptions::generated_max_expected_error_m`] (0 when off).
+    /// [`deocc_completion::FusePolicy::max_expected_error_m`] (0 when off).
     pub uncertain_dropped: usize,
     /// Far-side points not generated because another frame observed the object's back along
     /// their pixel's ray ([`PipelineOptions::skip_observed_far_side`]).
@@ -134,7 +134,7 @@ pub struct RunReport {
     /// ([`PipelineOptions::gate_max_depth_spread_m`]).
     pub points_spread_dropped: usize,
     /// Generated points left out as expected too far off
-    /// ([`PipelineOptions::generated_max_expected_error_m`]).
+    /// ([`deocc_completion::FusePolicy::max_expected_error_m`]).
     pub points_uncertain_dropped: usize,
     /// Far-side points not generated because another frame observed the object's back there
     /// ([`PipelineOptions::skip_observed_far_side`]).

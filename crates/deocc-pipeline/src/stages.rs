@@ -24,9 +24,9 @@ pub struct Stage {
 pub const STAGES: &[Stage] = &[
     Stage {
         name: "read",
-        what: "read the input (no side effects): a scene folder, a TUM RGB-D sequence or an MCAP recording (Foxglove JSON or ROS 2 CDR, topic patterns, stamp pairing, poses from `/tf` or a PoseStamped topic, frame picking)",
-        files: &["deocc-io/src/scene.rs", "deocc-io/src/tum.rs", "deocc-pipeline/src/recording.rs"],
-        functions: &["read_scene", "read_tum", "read_mcap", "read_input"],
+        what: "read the input (no side effects): a scene folder, a TUM RGB-D sequence, an MCAP recording (Foxglove JSON or ROS 2 CDR, topic patterns, stamp pairing, poses from `/tf` or a PoseStamped topic, frame picking) or an MRPT rawlog (`CObservation3DRangeScan` v9: depth and colour cameras with their own calibrations, a z-up world from MRPT's x-forward observation frame)",
+        files: &["deocc-io/src/scene.rs", "deocc-io/src/tum.rs", "deocc-io/src/rawlog.rs", "deocc-pipeline/src/recording.rs"],
+        functions: &["read_scene", "read_tum", "read_rawlog", "read_mcap", "read_input"],
         progress: None,
     },
     Stage {
@@ -87,7 +87,7 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "occlusion",
-        what: "occlusion per view (the depth order judged across a band without depth between two masks: an emitter's shadow), instances to complete",
+        what: "occlusion per view (the depth order judged across a band without depth between two masks: an emitter's shadow, wherever the band begins, in no mask or inside the farther one's), instances to complete",
         files: &["deocc-pipeline/src/occlusion.rs"],
         functions: &["analyse_view", "instances_to_complete"],
         progress: Some(0.47),
@@ -115,7 +115,7 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "fuse",
-        what: "alignment and fusion (each generated point carries the completer's probability as its confidence; optional median filter of a learned completer's depth; a thickness cap on a learned completer's far side, in metres and relative to the width of its silhouette's row (`generated_max_thickness_per_width`), and, looser, on the rules'; a confidence floor on a learned completer's revealed pixels (`generated_min_revealed_confidence`); a gate on the completer's own expected depth error, for a model with GL-DoT's error head (`generated_max_expected_error_m`, 3 cm), the rules completing the pixels it leaves out (`generated_uncertain_to_rules`, on); no far side where another frame saw the object's back (`skip_observed_far_side`, off); optional mirror check: points whose depth the mirrored crop's completion contradicts are left out)",
+        what: "alignment and fusion (each generated point carries the completer's probability as its confidence; optional median filter of a learned completer's depth; a thickness cap on a learned completer's far side, in metres and relative to the width of its silhouette's row (`completers.gldot.max_thickness_per_width`), and, looser, on the rules'; a confidence floor on a learned completer's revealed pixels (`completers.gldot.min_revealed_confidence`); a gate on the completer's own expected depth error, for a model with GL-DoT's error head (`completers.gldot.max_expected_error_m`, 3 cm), the rules completing the pixels it leaves out (`completers.gldot.uncertain_to_rules`, on); no far side where another frame saw the object's back (`skip_observed_far_side`, off); optional mirror check: points whose depth the mirrored crop's completion contradicts are left out)",
         files: &["deocc-pipeline/src/fuse.rs", "deocc-pipeline/src/complete.rs"],
         functions: &["fuse_completion", "median_within", "DepthSpread"],
         progress: Some(0.69),
@@ -330,5 +330,61 @@ mod tests {
             .collect::<Vec<_>>()
             .windows(2)
             .all(|w| w[0].1 < w[1].1));
+    }
+
+    /// Function lengths, from a line starting `fn`/`pub fn` to its closing brace at the same
+    /// indent: (lines, file, name).
+    fn function_lengths(file: &str, text: &str) -> Vec<(usize, String, String)> {
+        let lines: Vec<&str> = text.lines().collect();
+        let mut out = Vec::new();
+        let mut i = 0;
+        while i < lines.len() {
+            let l = lines[i];
+            let indent = l.len() - l.trim_start().len();
+            let t = l.trim_start();
+            let head = t
+                .strip_prefix("pub(crate) fn ")
+                .or_else(|| t.strip_prefix("pub fn "))
+                .or_else(|| t.strip_prefix("fn "));
+            if let Some(rest) = head.filter(|_| !l.trim_end().ends_with(';')) {
+                let name: String = rest
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_')
+                    .collect();
+                let close = format!("{}}}", " ".repeat(indent));
+                let end = (i + 1..lines.len())
+                    .find(|&j| lines[j].starts_with(&close) && lines[j].trim() == "}");
+                if let Some(end) = end {
+                    out.push((end - i + 1, file.to_string(), name));
+                    i = end;
+                }
+            }
+            i += 1;
+        }
+        out
+    }
+
+    /// Issue 45's limits: the run is a short list of stage calls (under 80 lines) and no function
+    /// of the pipeline is over 150 lines.
+    #[test]
+    fn the_run_and_every_pipeline_function_stay_short() {
+        let dir = crates().join("deocc-pipeline/src");
+        let mut all = Vec::new();
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "rs") {
+                let text = std::fs::read_to_string(&path).unwrap();
+                let name = path.file_name().unwrap().to_string_lossy().to_string();
+                all.extend(function_lengths(&name, &text));
+            }
+        }
+        let run = all
+            .iter()
+            .find(|f| f.2 == "run_observed")
+            .expect("run_observed");
+        assert!(run.0 < 80, "run_observed is {} lines", run.0);
+        let long: Vec<_> = all.iter().filter(|f| f.0 > 150).collect();
+        assert!(long.is_empty(), "over 150 lines: {long:?}");
+        assert!(all.len() > 100, "only {} functions found", all.len());
     }
 }

@@ -429,6 +429,16 @@ fn run_plain_stub(
     deocc_pipeline::run(scene, &chain, opts, &Vec::new()).unwrap()
 }
 
+/// `opts` with link `name`'s fusion policy patched.
+fn patched(
+    mut opts: PipelineOptions,
+    name: &str,
+    patch: deocc_completion::FusePatch,
+) -> PipelineOptions {
+    opts.completers.insert(name.into(), patch);
+    opts
+}
+
 fn completion_only() -> PipelineOptions {
     PipelineOptions {
         complete_planes: false,
@@ -502,10 +512,14 @@ fn the_thickness_cap_drops_deep_far_sides_only() {
     let scene = rendered.scene_input();
     let base = completion_only();
     let run = |cap: f32| {
-        let opts = PipelineOptions {
-            generated_max_thickness_m: cap,
-            ..base.clone()
-        };
+        let opts = patched(
+            base.clone(),
+            "stub",
+            deocc_completion::FusePatch {
+                max_thickness_m: Some(cap),
+                ..Default::default()
+            },
+        );
         run_plain_stub(&scene, &opts)
     };
     let far_colour = STUB_COLOUR.map(|c| (c as f32 * 0.75) as u8);
@@ -534,27 +548,28 @@ fn the_depth_median_applies_to_crops_within_its_width_limit_only() {
     let scene = rendered.scene_input();
     let base = completion_only();
     let run = |radius: usize, limit_m: f32| {
-        let opts = PipelineOptions {
-            generated_depth_median_px: radius,
-            generated_depth_median_max_crop_m: limit_m,
-            ..base.clone()
-        };
+        let opts = patched(
+            base.clone(),
+            "*",
+            deocc_completion::FusePatch {
+                depth_median_px: Some(radius),
+                depth_median_max_crop_m: Some(limit_m),
+                ..Default::default()
+            },
+        );
         run_plain_stub(&scene, &opts).completed.positions
     };
     let (plain, filtered) = (run(0, 0.0), run(2, 0.0));
     assert_ne!(plain, filtered, "the median changed nothing to test with");
     assert_eq!(run(2, 0.001), plain);
     assert_eq!(run(2, 10.0), filtered);
-    let opts = PipelineOptions {
-        generated_depth_median_px: 2,
-        generated_depth_median_max_crop_m: 0.5,
-        ..Default::default()
+    let policy = deocc_completion::FusePolicy {
+        depth_median_px: 2,
+        depth_median_max_crop_m: 0.5,
+        ..deocc_completion::FusePolicy::LEARNED
     };
     assert_eq!(
-        (
-            opts.generated_depth_median_for(0.5),
-            opts.generated_depth_median_for(0.51)
-        ),
+        (policy.depth_median_for(0.5), policy.depth_median_for(0.51)),
         (2, 0)
     );
 }
@@ -856,21 +871,28 @@ fn options_from_json_are_checked() {
             "gate_max_depth_spread_m",
         ),
         (
-            r#"{"generated_depth_median_px": 17}"#,
-            "generated_depth_median_px",
+            r#"{"completers": {"gldot": {"depth_median_px": 17}}}"#,
+            "completers.gldot.depth_median_px",
         ),
         (
-            r#"{"generated_max_thickness_m": -1}"#,
-            "generated_max_thickness_m",
-        ),
-        (r#"{"rules_max_thickness_m": 11}"#, "rules_max_thickness_m"),
-        (
-            r#"{"rules_max_thickness_per_width": -1}"#,
-            "rules_max_thickness_per_width",
+            r#"{"completers": {"*": {"max_thickness_m": -1}}}"#,
+            "completers.*.max_thickness_m",
         ),
         (
-            r#"{"generated_depth_median_max_crop_m": -0.5}"#,
-            "generated_depth_median_max_crop_m",
+            r#"{"completers": {"rules": {"max_thickness_m": 11}}}"#,
+            "completers.rules.max_thickness_m",
+        ),
+        (
+            r#"{"completers": {"rules": {"max_thickness_per_width": -1}}}"#,
+            "completers.rules.max_thickness_per_width",
+        ),
+        (
+            r#"{"completers": {"gldot": {"depth_median_max_crop_m": -0.5}}}"#,
+            "completers.gldot.depth_median_max_crop_m",
+        ),
+        (
+            r#"{"completers": {"gldot": {"max_thicknes_m": 0.1}}}"#,
+            "max_thicknes_m",
         ),
     ] {
         std::fs::write(&path, text).unwrap();
@@ -1202,15 +1224,15 @@ fn the_rules_complete_what_the_model_expects_to_be_off() {
     let rendered = small_scene();
     let scene = rendered.scene_input();
     let run = |expected_error: Option<f32>, limit: f32, fallback: bool| {
-        let opts = PipelineOptions {
-            complete_planes: false,
-            revolve_upright: false,
-            cuboid_upright: false,
-            extend_to_support: false,
-            generated_max_expected_error_m: limit,
-            generated_uncertain_to_rules: fallback,
-            ..Default::default()
-        };
+        let opts = patched(
+            completion_only(),
+            "stub",
+            deocc_completion::FusePatch {
+                max_expected_error_m: Some(limit),
+                uncertain_to_rules: Some(fallback),
+                ..Default::default()
+            },
+        );
         let chain = CompleterChain::single(Stub {
             max_width_m: 100.0,
             lopsided: 0.0,
@@ -1279,9 +1301,15 @@ fn the_rules_far_side_follows_its_silhouette_cap() {
             .filter(|&&g| g == Provenance::Rules.code())
             .count()
     };
-    let ratio = |r: f32| PipelineOptions {
-        rules_max_thickness_per_width: r,
-        ..Default::default()
+    let ratio = |r: f32| {
+        patched(
+            PipelineOptions::default(),
+            "rules",
+            deocc_completion::FusePatch {
+                max_thickness_per_width: Some(r),
+                ..Default::default()
+            },
+        )
     };
     let off = rules_points(ratio(0.0));
     assert!(off > 0);
@@ -1336,4 +1364,38 @@ fn the_run_fills_small_depth_holes_when_asked() {
     .validate()
     .unwrap_err();
     assert!(e.to_string().contains("fill_depth_max_gap_px"), "{e}");
+}
+
+/// A fusion patch for a link the chain does not have is refused, naming it and the chain; the
+/// link's own name and `*` are taken.
+#[test]
+fn a_patch_for_a_link_the_chain_lacks_is_refused() {
+    let scene = small_scene().scene_input();
+    let chain = CompleterChain::single(RulesCompleter::default());
+    let patch = deocc_completion::FusePatch {
+        max_thickness_m: Some(0.1),
+        ..Default::default()
+    };
+    let Err(e) = deocc_pipeline::run(
+        &scene,
+        &chain,
+        &patched(completion_only(), "gldott", patch),
+        &Vec::new(),
+    ) else {
+        panic!("a patch for a link that does not exist was taken");
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains("completers.gldott") && e.contains("(rules)"),
+        "{e}"
+    );
+    for name in ["rules", "*"] {
+        deocc_pipeline::run(
+            &scene,
+            &chain,
+            &patched(completion_only(), name, patch),
+            &Vec::new(),
+        )
+        .unwrap();
+    }
 }

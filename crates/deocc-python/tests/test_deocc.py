@@ -136,8 +136,9 @@ class Deocc(unittest.TestCase):
 
     def test_placing_options_make_thinner_completions(self):
         opts = deocc.placing_options()
-        self.assertLess(opts["rules_max_thickness_m"], 0.1)
-        self.assertGreater(opts["rules_max_thickness_per_width"], 0.0)
+        every = opts["completers"]["*"]
+        self.assertLess(every["max_thickness_m"], 0.1)
+        self.assertGreater(every["max_thickness_per_width"], 0.0)
         f = small(self.frames, 3)
         thick = deocc.run(f, completer="rules")
         thin = deocc.run(f, completer="rules", options=opts)
