@@ -138,7 +138,10 @@ fn main() -> ExitCode {
         #[cfg(feature = "lab")]
         Command::Bench(c) => bench::run(c),
         #[cfg(feature = "lab")]
-        Command::Train(a) => train::run(a),
+        Command::Train(a) => match &a.config {
+            Some(recipe) => recipe::run_command(recipe, &a.run, &a.data_root),
+            None => train::run(a),
+        },
         #[cfg(feature = "lab")]
         Command::Eval(c) => eval::run(c),
         #[cfg(feature = "lab")]

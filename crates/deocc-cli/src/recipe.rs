@@ -146,6 +146,18 @@ fn pairs_made(entry: &Map<String, Value>, root: &Path) -> bool {
         .exists()
 }
 
+/// `deocc train --config RECIPE`: the recipe, then where its weights are.
+pub fn run_command(recipe: &Path, run: &Path, root: &Path) -> Result<()> {
+    let out = run_recipe(recipe, run, root)?;
+    println!(
+        "recipe {} done: weights in {} (judge them with `deocc eval amodal --weights {}`)",
+        recipe.display(),
+        out.display(),
+        out.display()
+    );
+    Ok(())
+}
+
 /// Runs (or resumes) `recipe` into `run`: data, phases, export. Returns the export folder.
 pub fn run_recipe(recipe_path: &Path, run: &Path, root: &Path) -> Result<PathBuf> {
     let recipe = Recipe::read(recipe_path)?;

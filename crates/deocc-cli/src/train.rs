@@ -14,15 +14,15 @@ use crate::progress::bar;
 pub struct TrainArgs {
     /// Run directory: created if new, resumed if it holds a checkpoint.
     #[arg(long)]
-    run: PathBuf,
+    pub run: PathBuf,
     /// A whole recipe (configs/gldot-small.json is the shipped model's): make its training
     /// pairs, train its phases in order and export, resumable; the run directory holds one
     /// folder per phase and `export/`. The recipe's entries are this command's flags.
     #[arg(long, conflicts_with_all = RECIPE_CONFLICTS)]
-    config: Option<PathBuf>,
+    pub config: Option<PathBuf>,
     /// With --config: the folder the recipe's paths are relative to.
     #[arg(long, default_value = ".", requires = "config")]
-    data_root: PathBuf,
+    pub data_root: PathBuf,
     /// Folder with train-*.safetensors pair shards (from `deocc synth pairs --split train`).
     #[arg(long, default_value = "data/pairs")]
     data: PathBuf,
@@ -137,17 +137,8 @@ impl TrainArgs {
     }
 }
 
+/// One training run from its flags (`--config` runs go to [`crate::recipe::run_command`]).
 pub fn run(a: TrainArgs) -> Result<()> {
-    if let Some(recipe) = &a.config {
-        let out = crate::recipe::run_recipe(recipe, &a.run, &a.data_root)?;
-        println!(
-            "recipe {} done: weights in {} (judge them with `deocc eval amodal --weights {}`)",
-            recipe.display(),
-            out.display(),
-            out.display()
-        );
-        return Ok(());
-    }
     let Some(mut model) = GlDotConfig::preset(&a.preset) else {
         bail!("unknown preset '{}' (known: tiny, small, large)", a.preset);
     };

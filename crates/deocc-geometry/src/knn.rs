@@ -10,9 +10,10 @@ use rayon::prelude::*;
 
 use crate::error::{GeometryError, Result};
 
-/// Points per leaf. kiddo's `ImmutableKdTree` alias takes 32; on surface clouds (a scene's
-/// points, 1M indexed, 500k queried) 16 answers nearest-neighbour queries about a quarter
-/// faster at the same build time (`deocc bench geometry`; docs/decisions.md).
+/// Points per leaf. kiddo's `ImmutableKdTree` alias takes 32; 16 answers this project's queries
+/// (surface clouds, queries on or near the surface, in Morton order) faster at the same build
+/// time, and 8 or 4 no faster by enough to matter (a one-off comparison of leaf sizes;
+/// `deocc bench geometry` gives the end-to-end figures, docs/benchmarks.md).
 const BUCKET: usize = 16;
 
 /// kiddo's immutable tree (Eytzinger stems, arena leaves) with [`BUCKET`] points per leaf.
