@@ -17,6 +17,7 @@ pub mod pairs;
 pub mod render;
 pub mod scene;
 pub mod sensor;
+pub mod sensor_kind;
 pub mod shapes;
 pub mod sheet;
 pub mod tasks;

@@ -75,19 +75,21 @@ pub struct SceneConfig {
     pub extra_families: bool,
     /// Ground-truth surface samples per square metre.
     pub gt_points_per_m2: f32,
-    /// The project's first sensor model ([`crate::sensor::SensorKind::Gaussian`]); kept so that
+    /// The project's first sensor model ([`crate::sensor_kind::SensorKind::Gaussian`]); kept so that
     /// older figures and files reproduce. `sensor` is the general choice.
     pub sensor_noise: bool,
     /// The depth sensor that measures every view ([`crate::sensor`]).
-    pub sensor: crate::sensor::SensorKind,
+    pub sensor: crate::sensor_kind::SensorKind,
     pub user_meshes: Vec<UserMesh>,
 }
 
 impl SceneConfig {
     /// The sensor in force: `sensor`, or the first model when only `sensor_noise` is set.
-    pub fn sensor_kind(&self) -> crate::sensor::SensorKind {
+    pub fn sensor_kind(&self) -> crate::sensor_kind::SensorKind {
         match (self.sensor, self.sensor_noise) {
-            (crate::sensor::SensorKind::Clean, true) => crate::sensor::SensorKind::Gaussian,
+            (crate::sensor_kind::SensorKind::Clean, true) => {
+                crate::sensor_kind::SensorKind::Gaussian
+            }
             (k, _) => k,
         }
     }
@@ -112,7 +114,7 @@ impl Default for SceneConfig {
             extra_families: false,
             gt_points_per_m2: 10_000.0,
             sensor_noise: false,
-            sensor: crate::sensor::SensorKind::Clean,
+            sensor: crate::sensor_kind::SensorKind::Clean,
             user_meshes: Vec::new(),
         }
     }
