@@ -172,3 +172,37 @@ impl CompleterChain {
         Err(reasons)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rules::RulesCompleter;
+
+    /// Each link carries its completer's policy; a patch by name changes that link only, `*`
+    /// every link, and an unknown name none.
+    #[test]
+    fn links_carry_their_policies_and_patches_find_them_by_name() {
+        let mut chain = CompleterChain::single(RulesCompleter::default());
+        assert_eq!(chain.policy(0), FusePolicy::RULES);
+        let thin = FusePatch {
+            max_thickness_m: Some(0.02),
+            ..Default::default()
+        };
+        assert_eq!(chain.patch("gldot", &thin), 0);
+        assert_eq!(chain.policy(0), FusePolicy::RULES);
+        assert_eq!(chain.patch("rules", &thin), 1);
+        assert_eq!(chain.policy(0).max_thickness_m, 0.02);
+        assert_eq!(
+            chain.patch(
+                "*",
+                &FusePatch {
+                    max_thickness_per_width: Some(0.5),
+                    ..Default::default()
+                }
+            ),
+            1
+        );
+        assert_eq!(chain.policy(0).max_thickness_per_width, 0.5);
+        assert_eq!(chain.policy(0).max_thickness_m, 0.02);
+    }
+}

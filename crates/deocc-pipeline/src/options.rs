@@ -1,9 +1,8 @@
 //! What a run may be told: every field has a default, a JSON file may set any of them
 //! (`deocc run --options FILE`), unknown fields are refused and every value is range-checked.
 
-use std::path::Path;
-
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use deocc_completion::{FusePatch, FusePolicy};
 use serde::{Deserialize, Serialize};
