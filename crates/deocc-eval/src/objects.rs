@@ -21,7 +21,7 @@ use std::collections::BTreeMap;
 
 use deocc_completion::CompleterChain;
 use deocc_geometry::surface::TriangleSurface;
-use deocc_geometry::{KdIndex, PointCloud, Provenance};
+use deocc_geometry::{CellGrid, PointCloud, Provenance};
 use deocc_synth::shapes::Category;
 use serde::Serialize;
 
@@ -155,8 +155,7 @@ pub fn object_scores(
         .instance
         .as_deref()
         .ok_or_else(|| EvalError::Data("the ground truth carries no instance ids".into()))?;
-    let index = KdIndex::build(&gt.positions)?;
-    let near = index.nearest_batch(&prediction.positions);
+    let near = CellGrid::build(&gt.positions)?.nearest_batch(&prediction.positions);
     let codes = prediction
         .generated
         .as_deref()
@@ -212,7 +211,7 @@ pub fn object_scores(
             continue;
         }
         let dists: Vec<f32> = match own.get(&g) {
-            Some(o) if !o.is_empty() => KdIndex::build(o)?.nearest_distances(pts),
+            Some(o) if !o.is_empty() => CellGrid::build(o)?.nearest_distances(pts),
             _ => vec![f32::INFINITY; pts.len()],
         };
         scores.push(ObjectScore {
@@ -500,7 +499,7 @@ pub fn object_benchmark(
                 })
                 .map(|(p, _)| *p)
                 .collect();
-            let to_samples = KdIndex::build(&gt.cloud.positions)?.nearest_distances(&pts);
+            let to_samples = CellGrid::build(&gt.cloud.positions)?.nearest_distances(&pts);
             let to_surface = surface.distances(&pts, SURFACE_SEARCH_M);
             calibration.0 += pts.len();
             calibration.1 += to_samples

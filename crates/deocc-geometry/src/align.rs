@@ -6,8 +6,8 @@ use nalgebra::{
 };
 use rayon::prelude::*;
 
+use crate::cell_grid::CellGrid;
 use crate::error::{GeometryError, Result};
-use crate::knn::KdIndex;
 
 /// A similarity transform `dst = scale * rotation * src + translation`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -180,11 +180,13 @@ impl Moments {
     }
 }
 
-/// A k-d tree over an ICP target, with its normals for point-to-plane; build once, register many.
+/// A nearest-neighbour index over an ICP target (a [`CellGrid`]: each iteration asks for every
+/// source point's correspondence at once), with its normals for point-to-plane; build once,
+/// register many.
 pub struct IcpTarget<'a> {
     pub points: &'a [Point3<f32>],
     pub normals: Option<&'a [Vector3<f32>]>,
-    pub index: KdIndex,
+    pub index: CellGrid,
 }
 
 impl<'a> IcpTarget<'a> {
@@ -201,7 +203,7 @@ impl<'a> IcpTarget<'a> {
         Ok(Self {
             points,
             normals,
-            index: KdIndex::build(points)?,
+            index: CellGrid::build(points)?,
         })
     }
 }
@@ -221,7 +223,6 @@ pub fn icp(
             "point-to-plane ICP needs target normals".into(),
         ));
     }
-    let max_d2 = (options.max_correspondence_m as f64).powi(2);
     // Correspondences are searched in Morton order (neighbouring queries share tree nodes in
     // cache); the moments are sums over all points, so only their rounding depends on it.
     let source: Vec<Point3<f32>> = crate::knn::morton_order(source)
@@ -236,16 +237,19 @@ pub fn icp(
         .collect();
 
     let gather = |moved: &[Point3<f32>]| -> Moments {
+        let found = target
+            .index
+            .nearest_batch_within(moved, options.max_correspondence_m);
         moved
             .par_chunks(4096)
-            .map(|chunk| {
+            .zip(found.par_chunks(4096))
+            .map(|(chunk, found)| {
                 let mut m = Moments::zero();
-                for p in chunk {
-                    let nb = target.index.nearest(p);
-                    let d2 = nb.distance_sq as f64;
-                    if d2 > max_d2 {
+                for (p, nb) in chunk.iter().zip(found) {
+                    let Some(nb) = nb else {
                         continue;
-                    }
+                    };
+                    let d2 = nb.distance_sq as f64;
                     let s = p.coords.cast::<f64>();
                     let t = target.points[nb.index as usize].coords.cast::<f64>();
                     m.count += 1;

@@ -13,6 +13,7 @@
 
 pub mod align;
 pub mod camera;
+pub mod cell_grid;
 pub mod cloud;
 pub mod depth;
 pub mod distortion;
@@ -29,6 +30,7 @@ pub mod surface;
 pub mod voxel;
 
 pub use camera::{Camera, Intrinsics};
+pub use cell_grid::CellGrid;
 pub use cloud::{PointCloud, Provenance};
 pub use depth::DepthMap;
 pub use error::{GeometryError, Result};

@@ -3,11 +3,10 @@
 //! normal consistency, and precision / recall / F-score at a distance threshold.
 
 use nalgebra::{Point3, Vector3};
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::cell_grid::CellGrid;
 use crate::error::{GeometryError, Result};
-use crate::knn::KdIndex;
 
 /// Options of [`reconstruction_metrics`].
 #[derive(Debug, Clone, Copy)]
@@ -66,10 +65,10 @@ pub fn mean_median(values: &[f32]) -> (f64, f64) {
 
 /// Symmetric Chamfer distance: (mean a->b, mean b->a, their average).
 pub fn chamfer(a: &[Point3<f32>], b: &[Point3<f32>]) -> Result<(f64, f64, f64)> {
-    let tree_a = KdIndex::build(a)?;
-    let tree_b = KdIndex::build(b)?;
-    let ab = mean_median(&tree_b.nearest_distances(a)).0;
-    let ba = mean_median(&tree_a.nearest_distances(b)).0;
+    let grid_a = CellGrid::build(a)?;
+    let grid_b = CellGrid::build(b)?;
+    let ab = mean_median(&grid_b.nearest_distances(a)).0;
+    let ba = mean_median(&grid_a.nearest_distances(b)).0;
     Ok((ab, ba, (ab + ba) / 2.0))
 }
 
@@ -95,9 +94,7 @@ pub fn reconstruction_metrics(
             });
         }
     }
-    let gt_tree = KdIndex::build(ground_truth)?;
-    let pred_tree = KdIndex::build(prediction)?;
-    let acc = gt_tree.nearest_batch(prediction);
+    let acc = CellGrid::build(ground_truth)?.nearest_batch(prediction);
     let gt_queries: Vec<usize> = match gt_subset {
         Some(s) => (0..ground_truth.len()).filter(|&i| s[i]).collect(),
         None => (0..ground_truth.len()).collect(),
@@ -107,11 +104,8 @@ pub fn reconstruction_metrics(
             what: "ground-truth subset",
         });
     }
-    let comp: Vec<_> = gt_queries
-        .par_iter()
-        .with_min_len(1024)
-        .map(|&i| pred_tree.nearest(&ground_truth[i]))
-        .collect();
+    let gt_points: Vec<Point3<f32>> = gt_queries.iter().map(|&i| ground_truth[i]).collect();
+    let comp = CellGrid::build(prediction)?.nearest_batch(&gt_points);
     let acc_d: Vec<f32> = acc.iter().map(|n| n.distance_sq.sqrt()).collect();
     let comp_d: Vec<f32> = comp.iter().map(|n| n.distance_sq.sqrt()).collect();
     let (accuracy_mean, accuracy_median) = mean_median(&acc_d);
