@@ -28,6 +28,14 @@ def num(v, digits=3):
     return f"{v:.{digits}f}"
 
 
+def with_ci(report, key):
+    """A figure with its 95% interval (`KEY_ci95`) when the report has one."""
+    ci = report.get(key + "_ci95")
+    if ci is None:
+        return num(report[key])
+    return f"{num(report[key])} [{num(ci[0])}, {num(ci[1])}]"
+
+
 def pct(v):
     return f"{100 * v:+.1f}%"
 
@@ -55,7 +63,7 @@ def table():
         "| benchmark (report) | figure | structured-light sensor (headline) | clean depth (upper reference) | strongest non-learned baseline, clean |",
         "|---|---|---|---|---|",
         f"| perception, bench-v1 {clean['scenes']} scenes (`perception*.json`) | default segmenter, object mIoU | "
-        f"{num(sl['segmenter_miou'])} | {num(clean['segmenter_miou'])} | - |",
+        f"{with_ci(sl, 'segmenter_miou')} | {with_ci(clean, 'segmenter_miou')} | - |",
         f"| | occlusion F1, ground-truth masks / segmenter's | {num(sl['occlusion_f1'])} / "
         f"{num(sl['segmenter_occlusion_f1'])} | {num(clean['occlusion_f1'])} / "
         f"{num(clean['segmenter_occlusion_f1'])} | - |",

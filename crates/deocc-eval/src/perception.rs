@@ -140,6 +140,7 @@ pub fn segmenter_figures(
     counts: &mut DetectionCounts,
     ious: &mut SegmenterIous,
 ) {
+    ious.scenes += 1;
     let structure: Vec<u16> = r.scene.structure_ids();
     for view in &r.views {
         let truth = InstanceMap {
@@ -147,7 +148,7 @@ pub fn segmenter_figures(
             height: view.frame.height,
             ids: view.frame.instance.clone(),
         };
-        let pred = seg.segment_depth(&view.depth, &view.camera);
+        let pred = seg.segment_rgbd(&view.depth, Some(&view.rgb), &view.camera);
         for (t, iou) in matched_ious(&pred, &truth, 50, &[]) {
             let category = r
                 .scene
@@ -202,6 +203,10 @@ pub struct SegmenterIous {
     all: (f64, usize),
     /// Sum of the objects' [`SegmentLosses`] (floor and walls excluded) and their count.
     losses: (SegmentLosses, usize),
+    /// Each object's IoU with the scene it belongs to, for the interval over scenes.
+    object_ious: Vec<(u32, f64)>,
+    /// Scenes seen so far ([`segmenter_figures`] counts them).
+    scenes: u32,
 }
 
 impl SegmenterIous {
@@ -212,6 +217,7 @@ impl SegmenterIous {
         if !structure {
             self.objects.0 += iou;
             self.objects.1 += 1;
+            self.object_ious.push((self.scenes, iou));
         }
         self.all.0 += iou;
         self.all.1 += 1;
@@ -240,6 +246,12 @@ impl SegmenterIous {
     /// Mean over object instances (floor and walls excluded).
     pub fn miou_objects(&self) -> f64 {
         self.objects.0 / self.objects.1.max(1) as f64
+    }
+    /// The 95% interval of [`SegmenterIous::miou_objects`] from a bootstrap over scenes.
+    pub fn miou_objects_ci95(&self) -> [f64; 2] {
+        let (clusters, ious): (Vec<u32>, Vec<f64>) = self.object_ious.iter().copied().unzip();
+        let zero = vec![0.0; ious.len()];
+        crate::stats::compare(&ious, &zero, &clusters, 2000, 11).ci95
     }
     /// Mean over every instance, floor and walls included.
     pub fn miou_all(&self) -> f64 {
@@ -283,6 +295,8 @@ pub struct PerceptionReport {
     /// Default RGB-D segmenter: mean IoU of ground-truth object instances (>= 50 px, room
     /// structure excluded) with their best segment, and occlusion detection on its masks.
     pub segmenter_miou: f64,
+    /// Its 95% interval, bootstrap over scenes.
+    pub segmenter_miou_ci95: [f64; 2],
     /// The same including floor and walls (split by whatever stands on them).
     pub segmenter_miou_with_structure: f64,
     pub segmenter_occlusion_precision: f64,
@@ -415,6 +429,7 @@ pub fn perception_benchmark(
         grouping_ari_chairs: ablation[0].ari_chairs_mean,
         grouping_ablation: ablation,
         segmenter_miou: seg_ious.miou_objects(),
+        segmenter_miou_ci95: seg_ious.miou_objects_ci95(),
         segmenter_miou_with_structure: seg_ious.miou_all(),
         segmenter_occlusion_precision: seg_counts.precision(),
         segmenter_occlusion_recall: seg_counts.recall(),
