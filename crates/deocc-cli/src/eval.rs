@@ -199,6 +199,32 @@ pub struct PerceptionArgs {
     /// The depth front end's settings are the options file's `depth_clean`.
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
+    #[command(flatten)]
+    segmenter: SegmenterStudyArgs,
+}
+
+/// A study of the default segmenter's settings (the pipeline runs it with its defaults).
+#[derive(Args)]
+pub struct SegmenterStudyArgs {
+    /// Label pixels without depth by colour up to this cost (`ConvexitySegmenter::hole_max_cost`;
+    /// 0, the default, leaves them unlabelled; 10 is the value tuned for masks).
+    #[arg(long, default_value_t = 0.0)]
+    hole_colour_cost: f32,
+}
+
+impl SegmenterStudyArgs {
+    fn segmenter(&self) -> Result<deocc_pipeline::segment::ConvexitySegmenter> {
+        if !(self.hole_colour_cost >= 0.0 && self.hole_colour_cost.is_finite()) {
+            bail!(
+                "--hole-colour-cost {}: must be a finite cost >= 0",
+                self.hole_colour_cost
+            );
+        }
+        Ok(deocc_pipeline::segment::ConvexitySegmenter {
+            hole_max_cost: self.hole_colour_cost,
+            ..Default::default()
+        })
+    }
 }
 
 fn perception(a: PerceptionArgs) -> Result<()> {
@@ -214,6 +240,7 @@ fn perception(a: PerceptionArgs) -> Result<()> {
         a.failure_scenes,
         sensor,
         &clean,
+        &a.segmenter.segmenter()?,
         a.tuning,
         &mut || pb.inc(1),
     )?;
@@ -235,6 +262,8 @@ pub struct ReconstructionArgs {
     pipeline: crate::completers::PipelineArgs,
     #[command(flatten)]
     sensor: crate::sensor::SensorArgs,
+    #[command(flatten)]
+    segmenter: SegmenterStudyArgs,
 }
 
 fn reconstruction(a: ReconstructionArgs) -> Result<()> {
@@ -248,6 +277,7 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
         &opts,
         n,
         sensor,
+        &a.segmenter.segmenter()?,
         &mut || pb.inc(1),
     )?;
     pb.finish_and_clear();

@@ -316,6 +316,7 @@ fn failure_case(
     scenes: usize,
     sensor: deocc_synth::sensor::SensorKind,
     clean: &deocc_pipeline::depth_clean::DepthCleanOptions,
+    segmenter: &deocc_pipeline::segment::ConvexitySegmenter,
     tick: &mut dyn FnMut(),
 ) -> Result<FailureCaseFigures, crate::EvalError> {
     use deocc_pipeline::matching::Threshold;
@@ -323,14 +324,13 @@ fn failure_case(
     crate::with_sensor(&mut preset, sensor);
     preset.config.gt_points_per_m2 = 10.0;
     let n = scenes.min(preset.seeds.len());
-    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
     let mut ious = SegmenterIous::default();
     let mut counts = DetectionCounts::default();
     let (mut adaptive, mut fixed, mut k) = (0.0, 0.0, 0usize);
     for &seed in &preset.seeds[..n] {
         let mut r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         crate::clean_views(&mut r, clean);
-        segmenter_figures(&r, &segmenter, &mut counts, &mut ious);
+        segmenter_figures(&r, segmenter, &mut counts, &mut ious);
         if let (Some(a), Some(f)) = (
             grouping(&r, Threshold::Adaptive).1,
             grouping(&r, Threshold::Fixed(0.05)).1,
@@ -356,12 +356,15 @@ fn failure_case(
 }
 
 /// `deocc eval perception`: occlusion detection and grouping on the first `scenes` bench-v1
-/// scenes, the default segmenter, and the hollow-back chairs on `failure_scenes` chairs-v1 scenes.
+/// scenes, the segmenter (the default one unless a study changes it), and the hollow-back chairs
+/// on `failure_scenes` chairs-v1 scenes.
+#[allow(clippy::too_many_arguments)]
 pub fn perception_benchmark(
     scenes: usize,
     failure_scenes: usize,
     sensor: deocc_synth::sensor::SensorKind,
     clean: &deocc_pipeline::depth_clean::DepthCleanOptions,
+    segmenter: &deocc_pipeline::segment::ConvexitySegmenter,
     tuning: bool,
     tick: &mut dyn FnMut(),
 ) -> Result<PerceptionReport, crate::EvalError> {
@@ -384,7 +387,6 @@ pub fn perception_benchmark(
     ];
     let mut counts = DetectionCounts::default();
     let mut seg_counts = DetectionCounts::default();
-    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
     let mut seg_ious = SegmenterIous::default();
     let (mut seg_time, mut seg_views) = (0.0f64, 0usize);
     let mut sums = vec![(0.0f64, 0.0f64, 0usize, 0.0f64); thresholds.len()];
@@ -393,7 +395,7 @@ pub fn perception_benchmark(
         crate::clean_views(&mut r, clean);
         occlusion_counts(&r, &mut counts);
         let t0 = std::time::Instant::now();
-        segmenter_figures(&r, &segmenter, &mut seg_counts, &mut seg_ious);
+        segmenter_figures(&r, segmenter, &mut seg_counts, &mut seg_ious);
         seg_time += t0.elapsed().as_secs_f64();
         seg_views += r.views.len();
         for (k, (_, t)) in thresholds.iter().enumerate() {
@@ -439,7 +441,7 @@ pub fn perception_benchmark(
         segmenter_miou_by_category: seg_ious.per_category(),
         segmenter_losses: seg_ious.mean_losses(),
         hollow_back_chairs: (failure_scenes > 0)
-            .then(|| failure_case(failure_scenes, sensor, clean, tick))
+            .then(|| failure_case(failure_scenes, sensor, clean, segmenter, tick))
             .transpose()?,
     };
     Ok(report)

@@ -60,20 +60,20 @@ pub struct ReconstructionReport {
 }
 
 /// Runs [`ReconstructionReport`] on the first `scenes` of bench-v1; `tick` is called after each.
+/// The segmenter rows use `segmenter` (the default one unless a study changes it).
 pub fn reconstruction_benchmark(
     chain: &deocc_completion::CompleterChain,
     opts: &deocc_pipeline::PipelineOptions,
     scenes: usize,
     sensor: deocc_synth::sensor::SensorKind,
+    segmenter: &deocc_pipeline::segment::ConvexitySegmenter,
     tick: &mut dyn FnMut(),
 ) -> Result<ReconstructionReport, crate::EvalError> {
-    use deocc_pipeline::segment::ConvexitySegmenter;
     let mut preset = deocc_synth::dataset::bench_v1();
     crate::with_sensor(&mut preset, sensor);
     let n = scenes.min(preset.seeds.len());
     let (mut vis_figs, mut deo_figs, mut seg_figs) = (Vec::new(), Vec::new(), Vec::new());
     let mut seg_objects_figs = Vec::new();
-    let segmenter = ConvexitySegmenter::default();
     let (mut objects, mut total_s) = (0usize, 0f64);
     let mut stages = deocc_pipeline::StageTimings::default();
     for &seed in &preset.seeds[..n] {
@@ -82,7 +82,7 @@ pub fn reconstruction_benchmark(
         // The product's front half (the depth front end on every frame) before each run.
         let mut scene = scene;
         let unlabelled_input = crate::scenes::unlabelled(scene.clone());
-        let prepared = deocc_pipeline::front::prepare(&mut scene, opts, None, &segmenter, false)?;
+        let prepared = deocc_pipeline::front::prepare(&mut scene, opts, None, segmenter, false)?;
         let out = deocc_pipeline::run_prepared(
             &scene,
             chain,
@@ -101,7 +101,7 @@ pub fn reconstruction_benchmark(
         // The same scene with the default segmenter instead of the ground-truth masks.
         let mut unlabelled = unlabelled_input;
         let prepared =
-            deocc_pipeline::front::prepare(&mut unlabelled, opts, None, &segmenter, true)?;
+            deocc_pipeline::front::prepare(&mut unlabelled, opts, None, segmenter, true)?;
         let seg_out = deocc_pipeline::run_prepared(
             &unlabelled,
             chain,

@@ -117,8 +117,16 @@ fn perception_holds_under_a_structured_light_sensor() {
         ..on.clone()
     };
     let run = |sensor, clean: &deocc_pipeline::depth_clean::DepthCleanOptions| {
-        deocc_eval::perception::perception_benchmark(2, 0, sensor, clean, false, &mut || {})
-            .unwrap()
+        deocc_eval::perception::perception_benchmark(
+            2,
+            0,
+            sensor,
+            clean,
+            &Default::default(),
+            false,
+            &mut || {},
+        )
+        .unwrap()
     };
     let clean = run(SensorKind::Clean, &on);
     let sensed = run(SensorKind::StructuredLight, &on);

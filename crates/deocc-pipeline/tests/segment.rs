@@ -1,6 +1,7 @@
-//! The default segmenter labels pixels without depth from the colour image: a projector's shadow
-//! on the wall behind a box goes to the wall, a drop-out inside the box to the box, a large hole
-//! stays unlabelled, and without RGB (or with the rule off) nothing changes.
+//! The default segmenter can label pixels without depth from the colour image
+//! (`hole_max_cost`): a projector's shadow on the wall behind a box goes to the wall, a drop-out
+//! inside the box to the box, a large hole stays unlabelled; without RGB, or with the rule off
+//! (the default), nothing changes.
 
 use deocc_geometry::camera::{Camera, Intrinsics};
 use deocc_geometry::DepthMap;
@@ -46,6 +47,14 @@ fn frame() -> (DepthMap, RgbImage, Camera) {
     (DepthMap::new(W, H, depth).unwrap(), rgb, camera)
 }
 
+/// The segmenter with hole labelling on, at the value tuned for masks.
+fn colour_holes() -> ConvexitySegmenter {
+    ConvexitySegmenter {
+        hole_max_cost: 10.0,
+        ..Default::default()
+    }
+}
+
 fn id_at(ids: &[u16], u: u32, v: u32) -> u16 {
     ids[(v * W + u) as usize]
 }
@@ -53,7 +62,7 @@ fn id_at(ids: &[u16], u: u32, v: u32) -> u16 {
 #[test]
 fn holes_take_the_label_of_the_surface_they_match_in_colour() {
     let (depth, rgb, camera) = frame();
-    let seg = ConvexitySegmenter::default();
+    let seg = colour_holes();
     let map = seg.segment_rgbd(&depth, Some(&rgb), &camera);
     let (wall, boxx) = (id_at(&map.ids, 60, 30), id_at(&map.ids, 25, 20));
     assert!(
@@ -98,23 +107,21 @@ fn holes_take_the_label_of_the_surface_they_match_in_colour() {
 fn without_rgb_or_with_the_rule_off_holes_stay_unlabelled() {
     let (depth, rgb, camera) = frame();
     let plain = ConvexitySegmenter::default().segment_depth(&depth, &camera);
-    let off = ConvexitySegmenter {
-        hole_max_cost: 0.0,
-        ..Default::default()
-    };
-    assert_eq!(off.segment_rgbd(&depth, Some(&rgb), &camera).ids, plain.ids);
+    // Off by default.
+    let default = ConvexitySegmenter::default();
+    assert_eq!(default.hole_max_cost, 0.0);
     assert_eq!(
-        ConvexitySegmenter::default()
-            .segment_rgbd(&depth, None, &camera)
-            .ids,
+        default.segment_rgbd(&depth, Some(&rgb), &camera).ids,
         plain.ids
     );
-    // A colour image of another size is not used.
+    // On, but without RGB or with a colour image of another size: not used.
+    let on = colour_holes();
+    assert_eq!(on.segment_rgbd(&depth, None, &camera).ids, plain.ids);
     let small = RgbImage::new(W / 2, H / 2);
     assert_eq!(
-        ConvexitySegmenter::default()
-            .segment_rgbd(&depth, Some(&small), &camera)
-            .ids,
+        on.segment_rgbd(&depth, Some(&small), &camera).ids,
         plain.ids
     );
+    // And on with the right image, it does label something.
+    assert_ne!(on.segment_rgbd(&depth, Some(&rgb), &camera).ids, plain.ids);
 }
