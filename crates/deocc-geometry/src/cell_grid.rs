@@ -26,8 +26,8 @@ use nalgebra::Point3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use crate::error::{GeometryError, Result};
-use crate::knn::{spread_bits, KdIndex, Neighbour};
+use crate::error::Result;
+use crate::knn::{check_index_input, spread_bits, KdIndex, Neighbour};
 
 /// Bits per axis of the fine quantisation the cells are cut from.
 const BITS: u32 = 21;
@@ -79,26 +79,7 @@ impl CellGrid {
     /// [`CellGrid::build`] with another target for the mean points per occupied cell (a tuning knob
     /// for benchmarks; every value gives the same answers).
     pub fn build_with_occupancy(points: &[Point3<f32>], occupancy: f64) -> Result<Self> {
-        if points.is_empty() {
-            return Err(GeometryError::Empty {
-                what: "point set for the cell grid",
-            });
-        }
-        if points.len() > u32::MAX as usize {
-            return Err(GeometryError::InvalidArgument(format!(
-                "{} points are more than a cell grid indexes (u32)",
-                points.len()
-            )));
-        }
-        if let Some(index) = points
-            .iter()
-            .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
-        {
-            return Err(GeometryError::NonFinite {
-                what: "point set for the cell grid",
-                index,
-            });
-        }
+        check_index_input(points, "point set for the cell grid")?;
         let (lo, hi) = points
             .iter()
             .fold(([f64::MAX; 3], [f64::MIN; 3]), |(mut lo, mut hi), p| {

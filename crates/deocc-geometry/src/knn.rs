@@ -35,20 +35,7 @@ pub struct Neighbour {
 impl KdIndex {
     /// Builds the tree. Errors on an empty set, non-finite coordinates, or more than u32::MAX points.
     pub fn build(points: &[Point3<f32>]) -> Result<Self> {
-        if points.is_empty() {
-            return Err(GeometryError::Empty {
-                what: "point set for the k-d tree",
-            });
-        }
-        if let Some(index) = points
-            .iter()
-            .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
-        {
-            return Err(GeometryError::NonFinite {
-                what: "point set for the k-d tree",
-                index,
-            });
-        }
+        check_index_input(points, "point set for the k-d tree")?;
         let arrays = crate::cloud::as_arrays(points);
         let tree = Tree::new_from_slice_parallel(&arrays)
             .map_err(|e| GeometryError::InvalidArgument(format!("k-d tree construction: {e:?}")))?;
@@ -162,6 +149,27 @@ impl KdIndex {
             })
             .collect()
     }
+}
+
+/// The input of a nearest-neighbour index ([`KdIndex`], [`crate::CellGrid`]): not empty, every
+/// coordinate finite, indices that fit in u32. `what` names the set in the error.
+pub(crate) fn check_index_input(points: &[Point3<f32>], what: &'static str) -> Result<()> {
+    if points.is_empty() {
+        return Err(GeometryError::Empty { what });
+    }
+    if points.len() > u32::MAX as usize {
+        return Err(GeometryError::InvalidArgument(format!(
+            "{what}: {} points are more than an index holds (u32)",
+            points.len()
+        )));
+    }
+    if let Some(index) = points
+        .iter()
+        .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
+    {
+        return Err(GeometryError::NonFinite { what, index });
+    }
+    Ok(())
 }
 
 /// Spreads the low 21 bits of `v` to every third bit.
