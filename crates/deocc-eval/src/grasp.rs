@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use deocc_completion::CompleterChain;
 use deocc_robot::grasp_eval::{affordance_iou, precision, GraspOutcome, GroundTruthScene};
-use deocc_robot::{AntipodalPlanner, GraspOptions, GraspPlanner};
+use deocc_robot::{AntipodalPlanner, GraspOptions, GraspPlanner, PlanStats};
 use nalgebra::Point3;
 use serde::Serialize;
 
@@ -57,6 +57,9 @@ pub struct SceneGrasps {
     /// The revolve stage replaced the target's completion by a surface of revolution
     /// (`deocc_pipeline::revolve`; false for the observed and ground-truth clouds).
     pub target_revolved: bool,
+    /// Why the planner turned its candidates down (all zero when the target had too few points
+    /// to plan on).
+    pub plan_stats: PlanStats,
     /// Planning and evaluation of this cloud.
     pub seconds: f64,
 }
@@ -105,7 +108,7 @@ pub struct GraspReport {
 #[allow(clippy::too_many_arguments)]
 pub fn score_cloud(
     table: Option<u32>,
-    planner: &dyn GraspPlanner,
+    planner: &AntipodalPlanner,
     options: &GraspOptions,
     scene_points: &[Point3<f32>],
     instance: &[u32],
@@ -121,12 +124,12 @@ pub fn score_cloud(
         .filter(|(_, &i)| i == target)
         .map(|(p, _)| *p)
         .collect();
-    let grasps = if target_points.len() >= 2 * options.min_jaw_points {
+    let (grasps, plan_stats) = if target_points.len() >= 2 * options.min_jaw_points {
         planner
-            .plan(scene_points, &target_points)
+            .plan_with_stats(scene_points, &target_points)
             .map_err(|e| EvalError::Data(e.to_string()))?
     } else {
-        Vec::new()
+        (Vec::new(), PlanStats::default())
     };
     let outcomes: Vec<GraspOutcome> = grasps
         .iter()
@@ -179,6 +182,7 @@ pub fn score_cloud(
                 .filter(|o| matches!(o, GraspOutcome::Empty))
                 .count(),
             target_revolved: false,
+            plan_stats,
             seconds: t.elapsed().as_secs_f64(),
         },
         holding,
@@ -273,7 +277,7 @@ pub fn grasp_benchmark(
             .chain(chains.iter().map(|c| (&c.chain, c.options_or(opts))))
             .enumerate()
         {
-            let out = deocc_pipeline::run(&input, chain, &for_grasping(row_opts), &Vec::new())?;
+            let out = crate::run_as_product(&input, chain, &for_grasping(row_opts))?;
             let cloud = if k == 0 {
                 &out.observed
             } else {

@@ -103,6 +103,21 @@ pub fn with_sensor(
     }
 }
 
+/// A scene with its instance maps through the product's path: the front half
+/// ([`deocc_pipeline::front::prepare`]: the depth front end on every frame, no segmentation
+/// since the maps are given), then the run. What `deocc run`, `deocc grasp` and `deocc place` do
+/// with the same input, so that a benchmark under a sensor model judges what the product sees.
+pub fn run_as_product(
+    scene: &deocc_io::scene::SceneInput,
+    chain: &deocc_completion::CompleterChain,
+    opts: &deocc_pipeline::PipelineOptions,
+) -> Result<deocc_pipeline::PipelineOutput, deocc_pipeline::PipelineError> {
+    let mut scene = scene.clone();
+    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
+    let prepared = deocc_pipeline::front::prepare(&mut scene, opts, None, &segmenter, false)?;
+    deocc_pipeline::run_prepared(&scene, chain, opts, prepared, &deocc_pipeline::Unobserved)
+}
+
 /// The product's depth front end ([`deocc_pipeline::depth_clean`]) on every view of a rendered
 /// scene, so that a benchmark judges what the pipeline sees.
 pub fn clean_views(

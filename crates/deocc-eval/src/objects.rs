@@ -433,7 +433,6 @@ pub fn object_benchmark(
     ground_truth_masks: bool,
     tick: &mut dyn FnMut(),
 ) -> Result<ObjectReport, EvalError> {
-    use deocc_pipeline::instances::ensure_instances;
     use deocc_pipeline::segment::ConvexitySegmenter;
     let n = scenes.min(preset.seeds.len());
     let opts = deocc_pipeline::PipelineOptions {
@@ -471,7 +470,9 @@ pub fn object_benchmark(
         } else {
             crate::scenes::unlabelled(rendered.scene_input())
         };
-        ensure_instances(&mut scene, &segmenter)?;
+        // The product's front half once (the depth front end, then the segmenter where there
+        // are no masks), every chain on its result.
+        let prepared = deocc_pipeline::front::prepare(&mut scene, &opts, None, &segmenter, false)?;
         let gt = &rendered.ground_truth;
         let tris = deocc_synth::render::SceneTriangles::new(&rendered.scene);
         let surface = TriangleSurface::new(
@@ -516,7 +517,13 @@ pub fn object_benchmark(
             .chain(chains.iter().map(|(_, c)| c))
             .enumerate()
         {
-            let out = deocc_pipeline::run(&scene, chain, &opts, &Vec::new())?;
+            let out = deocc_pipeline::run_prepared(
+                &scene,
+                chain,
+                &opts,
+                prepared.clone(),
+                &deocc_pipeline::Unobserved,
+            )?;
             let fig = object_scores(
                 &out.completed,
                 &gt.cloud,

@@ -269,7 +269,7 @@ pub fn place_benchmark(
         );
         let input = rendered.scene_input();
         let empty = CompleterChain::default();
-        let out = deocc_pipeline::run(&input, &empty, opts, &Vec::new())?;
+        let out = crate::run_as_product(&input, &empty, opts)?;
         let mut rows = Vec::new();
         let mut panels = Vec::new();
         let mut panel = |m: &PlaceMap, name: &str| {
@@ -297,7 +297,7 @@ pub fn place_benchmark(
         }
         for row in chains {
             let (name, chain) = (&row.name, &row.chain);
-            let out = deocc_pipeline::run(&input, chain, row.options_or(opts), &Vec::new())?;
+            let out = crate::run_as_product(&input, chain, row.options_or(opts))?;
             let m = build_map(
                 &out.completed.positions,
                 &plane,

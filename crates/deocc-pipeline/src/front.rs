@@ -4,8 +4,10 @@
 //! 1. a learned depth source (when the caller has one) fills the pixels the sensor did not
 //!    measure ([`crate::depth::fill_scene_depth`]);
 //! 2. the depth front end cleans every frame in units of its own noise ([`crate::depth_clean`]);
-//! 3. frames without poses are registered ([`crate::registration::register_unposed`]);
-//! 4. frames without instance maps (every frame with `segment`) are segmented
+//! 3. the rims of given instance masks whose depth belongs to something else lose their
+//!    instance ([`crate::mask_rims`]);
+//! 4. frames without poses are registered ([`crate::registration::register_unposed`]);
+//! 5. frames without instance maps (every frame with `segment`) are segmented
 //!    ([`crate::instances::ensure_instances`]).
 //!
 //! Then [`crate::run_prepared`] runs the pipeline and puts what the front half did into the
@@ -15,6 +17,7 @@ use deocc_io::scene::SceneInput;
 
 use crate::depth::{DepthFillOptions, DepthFillReport, DepthSource};
 use crate::depth_clean::{clean_depth, DepthCleanRecord};
+use crate::mask_rims::{unlabel_mask_rims, MaskRimRecord};
 use crate::segment::Segmenter;
 use crate::{PipelineError, PipelineOptions, Registration};
 
@@ -24,6 +27,8 @@ pub struct Prepared {
     pub registration: Registration,
     pub depth_fill: Vec<DepthFillReport>,
     pub depth_clean: Vec<DepthCleanRecord>,
+    /// One record per frame (all zero for a frame without a given map, or with `segment`).
+    pub mask_rims: Vec<MaskRimRecord>,
     /// Instances the segmenter found across views (0 when every frame came with masks).
     pub segmented: usize,
 }
@@ -48,17 +53,23 @@ pub fn prepare(
         .iter_mut()
         .map(|f| clean_depth(&mut f.depth, &opts.depth_clean))
         .collect();
-    let registration = crate::registration::register_unposed(scene)?;
     if segment {
         for f in &mut scene.frames {
             f.instances = None;
         }
     }
+    let mask_rims = scene
+        .frames
+        .iter_mut()
+        .map(|f| unlabel_mask_rims(f, &opts.mask_rims))
+        .collect();
+    let registration = crate::registration::register_unposed(scene)?;
     let segmented = crate::instances::ensure_instances(scene, segmenter)?;
     Ok(Prepared {
         registration,
         depth_fill,
         depth_clean,
+        mask_rims,
         segmented,
     })
 }

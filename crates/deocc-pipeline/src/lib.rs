@@ -22,6 +22,7 @@ pub mod fuse;
 pub mod gate;
 pub mod ground_truth;
 pub mod instances;
+pub mod mask_rims;
 pub mod matching;
 pub mod occlusion;
 pub mod options;
@@ -132,6 +133,7 @@ pub fn run_prepared(
     let own = std::mem::take(&mut out.report.depth_fill);
     out.report.depth_fill = prepared.depth_fill.into_iter().chain(own).collect();
     out.report.depth_clean = prepared.depth_clean;
+    out.report.mask_rims = prepared.mask_rims;
     Ok(out)
 }
 
@@ -631,5 +633,6 @@ fn make_report(
         peak_rss_mib: report::peak_rss_mib(),
         depth_fill: Vec::new(),
         depth_clean: Vec::new(),
+        mask_rims: Vec::new(),
     }
 }

@@ -109,6 +109,9 @@ pub struct PipelineOptions {
     /// The depth front end ([`crate::depth_clean`]): outliers, flying pixels and specks
     /// removed, surfaces smoothed without crossing edges, in units of each frame's own noise.
     pub depth_clean: crate::depth_clean::DepthCleanOptions,
+    /// Masks meet depth ([`crate::mask_rims`]): the rim of a given instance mask whose depth
+    /// belongs to something else (the wall behind, the occluder in front) loses its instance.
+    pub mask_rims: crate::mask_rims::MaskRimOptions,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -162,6 +165,7 @@ impl Default for PipelineOptions {
             skip_observed_far_side: SKIP_OBSERVED_FAR_SIDE,
             fill_depth_max_gap_px: 0,
             depth_clean: crate::depth_clean::DepthCleanOptions::default(),
+            mask_rims: crate::mask_rims::MaskRimOptions::default(),
         }
     }
 }
@@ -249,6 +253,7 @@ impl PipelineOptions {
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), PipelineError> {
         self.depth_clean.validate()?;
+        self.mask_rims.validate()?;
         if self.fill_depth_max_gap_px > 64 {
             return Err(bad(
                 "fill_depth_max_gap_px",

@@ -119,6 +119,10 @@ pub const OPTIONS: &[OptionHelp] = &[
     row!("depth_clean.min_region_px", i(0, 10_000), "surface regions smaller than this are specks and removed, pixels"),
     row!("depth_clean.smooth_sigmas", f(0.5, 50.0), "smoothing averages neighbours within this many sigmas (never across an edge)"),
     row!("depth_clean.radius", i(0, 8), "smoothing window radius, pixels"),
+    row!("mask_rims.enabled", Range::Bool, "given instance masks lose the rims whose depth belongs to something else"),
+    row!("mask_rims.connect_sigmas", f(0.5, 50.0), "neighbours within this many sigmas (plus 2% of depth) are one surface"),
+    row!("mask_rims.min_piece_px", i(0, 10_000), "a mask's depth pieces smaller than this are rims, pixels"),
+    row!("mask_rims.rim_fraction", f(0.0, 1.0), "a piece with this share of its pixels on the mask's border is a rim"),
 ];
 
 /// The links' own policies, as the defaults of the `completers.NAME.*` rows.

@@ -154,6 +154,9 @@ pub struct RunReport {
     /// What the depth front end did to each frame ([`crate::depth_clean`]): its noise before and
     /// after, the outliers and specks removed, the pixels smoothed.
     pub depth_clean: Vec<crate::depth_clean::DepthCleanRecord>,
+    /// What the mask-rim stage did to each frame that came with instance maps
+    /// ([`crate::mask_rims`]): instances whose mask lost a rim, pixels unlabelled.
+    pub mask_rims: Vec<crate::mask_rims::MaskRimRecord>,
 }
 
 /// The process's peak resident set size so far (Linux: `VmHWM` of /proc/self/status), MiB.

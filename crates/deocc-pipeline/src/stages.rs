@@ -45,9 +45,16 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "depth_clean",
-        what: "the depth front end: each frame's noise `sigma(z) = a + b z^2` estimated from the frame itself; outliers and flying pixels (continuing none of their sides' surfaces), specks, and smoothing within 4 sigma without crossing edges",
+        what: "the depth front end: each frame's noise `sigma(z) = a + b z^2` estimated from the frame itself; outliers and flying pixels (continuing none of their sides' surfaces), specks, and smoothing (a least-squares plane through each window's pixels within 4 sigma, read at its centre) without crossing edges",
         files: &["deocc-pipeline/src/depth_clean.rs", "deocc-geometry/src/noise.rs"],
         functions: &["clean_depth", "DepthNoise::estimate"],
+        progress: None,
+    },
+    Stage {
+        name: "mask_rims",
+        what: "masks meet depth: inside each given instance mask, depth-connected pieces (4 sigma + 2% z); a piece other than the largest that is tiny or lies mostly on the mask's border (the wall behind or the occluder in front seen through a mask edge a pixel off) loses its instance",
+        files: &["deocc-pipeline/src/mask_rims.rs"],
+        functions: &["unlabel_mask_rims"],
         progress: None,
     },
     Stage {
@@ -73,7 +80,7 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "front",
-        what: "the front half in one function for every caller: learned depth fill, depth front end, registration, instances",
+        what: "the front half in one function for every caller: learned depth fill, depth front end, mask rims, registration, instances",
         files: &["deocc-pipeline/src/front.rs", "deocc-pipeline/src/lib.rs"],
         functions: &["prepare", "run_prepared"],
         progress: None,

@@ -38,6 +38,105 @@ pub trait GraspPlanner: Send + Sync {
         -> Result<Vec<Grasp>, RobotError>;
 }
 
+/// Why the antipodal planner's candidates were turned down: what a caller shows when a plan comes
+/// back empty ("nothing to grasp, and why").
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PlanStats {
+    /// Seed points tried (those with a usable normal).
+    pub seeds: usize,
+    /// Candidate poses scored: seeds x approaches x depths, less approaches from below.
+    pub candidates: usize,
+    /// No target point between the open jaws.
+    pub no_contact: usize,
+    /// The target's extent across the jaws is wider than the opening allows or thinner than a
+    /// sheet.
+    pub too_wide_or_thin: usize,
+    /// A target point closer to the palm than the clearance.
+    pub palm: usize,
+    /// A jaw touches fewer points than it needs.
+    pub jaw_points: usize,
+    /// Under a quarter of a jaw's points have their normal inside the friction cone.
+    pub friction_share: usize,
+    /// The contact line leaves the friction cone.
+    pub closure_angle: usize,
+    /// A scene point inside a finger or the palm.
+    pub collision: usize,
+    /// Candidates that passed every check (before non-maximum suppression).
+    pub accepted: usize,
+}
+
+impl PlanStats {
+    fn add(mut self, o: Self) -> Self {
+        self.seeds += o.seeds;
+        self.candidates += o.candidates;
+        self.no_contact += o.no_contact;
+        self.too_wide_or_thin += o.too_wide_or_thin;
+        self.palm += o.palm;
+        self.jaw_points += o.jaw_points;
+        self.friction_share += o.friction_share;
+        self.closure_angle += o.closure_angle;
+        self.collision += o.collision;
+        self.accepted += o.accepted;
+        self
+    }
+
+    fn count(&mut self, r: Reject) {
+        match r {
+            Reject::NoContact => self.no_contact += 1,
+            Reject::WidthOrThin => self.too_wide_or_thin += 1,
+            Reject::Palm => self.palm += 1,
+            Reject::JawPoints => self.jaw_points += 1,
+            Reject::FrictionShare => self.friction_share += 1,
+            Reject::ClosureAngle => self.closure_angle += 1,
+            Reject::Collision => self.collision += 1,
+        }
+    }
+
+    /// The check that turned down most candidates, in words; `None` when nothing was tried or
+    /// something passed.
+    pub fn main_reason(&self) -> Option<&'static str> {
+        if self.accepted > 0 {
+            return None;
+        }
+        if self.candidates == 0 {
+            return Some("no target point has a usable surface normal");
+        }
+        [
+            (self.no_contact, "no target point between the jaws"),
+            (
+                self.too_wide_or_thin,
+                "the target is wider than the gripper opens (or a thin sheet) across every closing axis tried",
+            ),
+            (self.palm, "the palm would touch the target"),
+            (self.jaw_points, "too few target points under a jaw"),
+            (
+                self.friction_share,
+                "the surface under the jaws is not facing them (normals outside the friction cone)",
+            ),
+            (self.closure_angle, "the contact line leaves the friction cone"),
+            (
+                self.collision,
+                "every grasp that holds would collide with the scene (fingers or palm inside other points)",
+            ),
+        ]
+        .into_iter()
+        .max_by_key(|(n, _)| *n)
+        .map(|(_, why)| why)
+    }
+}
+
+/// Why one candidate was turned down.
+#[derive(Debug, Clone, Copy)]
+enum Reject {
+    NoContact,
+    WidthOrThin,
+    Palm,
+    JawPoints,
+    FrictionShare,
+    ClosureAngle,
+    Collision,
+}
+
 /// The antipodal planner's settings (metres, degrees).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -61,6 +160,13 @@ pub struct GraspOptions {
     pub jaw_band_m: f32,
     /// Least free space between each jaw and the target's points when the grasp is opened.
     pub margin_m: f32,
+    /// Share of the target's points between the jaws, on each side, left out when the planner
+    /// measures the target's extent across the jaws and places the jaws' contacts, and share
+    /// that may come nearer the palm than `palm_clearance_m`: a sensor's
+    /// axial noise puts a few points millimetres outside the true surface, and the extreme
+    /// point alone would make a can that fits the gripper look wider than its opening
+    /// (0.02 on pickup-v1 tuning scenes under the structured-light model).
+    pub extent_trim: f32,
     /// The opening aimed for each side (up to the aperture): a cloud's hidden side is uncertain,
     /// so the gripper opens wider than the points need when it can.
     pub open_margin_m: f32,
@@ -94,6 +200,7 @@ impl Default for GraspOptions {
             min_jaw_points: 6,
             jaw_band_m: 0.004,
             margin_m: 0.005,
+            extent_trim: 0.02,
             open_margin_m: 0.02,
             palm_clearance_m: 0.01,
             collision_margin_m: 0.005,
@@ -145,6 +252,7 @@ impl GraspOptions {
         count("min_jaw_points", self.min_jaw_points, 1, 1000)?;
         real("jaw_band_m", self.jaw_band_m, 0.0, 0.05, " m")?;
         real("margin_m", self.margin_m, 0.0, 0.05, " m")?;
+        real("extent_trim", self.extent_trim, 0.0, 0.2, "")?;
         real("open_margin_m", self.open_margin_m, 0.0, 0.1, " m")?;
         real("palm_clearance_m", self.palm_clearance_m, 0.0, 0.1, " m")?;
         real(
@@ -262,6 +370,17 @@ impl GraspPlanner for AntipodalPlanner {
         scene: &[Point3<f32>],
         target: &[Point3<f32>],
     ) -> Result<Vec<Grasp>, RobotError> {
+        self.plan_with_stats(scene, target).map(|(g, _)| g)
+    }
+}
+
+impl AntipodalPlanner {
+    /// [`GraspPlanner::plan`], also counting why candidates were turned down.
+    pub fn plan_with_stats(
+        &self,
+        scene: &[Point3<f32>],
+        target: &[Point3<f32>],
+    ) -> Result<(Vec<Grasp>, PlanStats), RobotError> {
         let o = &self.options;
         o.validate()?;
         let g = &o.gripper;
@@ -299,14 +418,16 @@ impl GraspPlanner for AntipodalPlanner {
         let stride = (pts.len() / o.seeds).max(1);
         let seeds: Vec<usize> = (0..pts.len()).step_by(stride).take(o.seeds).collect();
         let search = g.max_aperture + g.depth + g.finger_height;
-        let mut candidates: Vec<Grasp> = seeds
+        let per_seed: Vec<(Vec<Grasp>, PlanStats)> = seeds
             .par_iter()
-            .flat_map_iter(|&s| {
+            .map(|&s| {
                 let mut out = Vec::new();
+                let mut stats = PlanStats::default();
                 let n = normals[s];
                 if n.norm_squared() < 0.5 {
-                    return out;
+                    return (out, stats);
                 }
+                stats.seeds = 1;
                 let local_ids: Vec<usize> = index
                     .within(&pts[s], search)
                     .into_iter()
@@ -321,7 +442,8 @@ impl GraspPlanner for AntipodalPlanner {
                         continue;
                     }
                     for &d in &o.depths {
-                        if let Some(gr) = self.candidate(
+                        stats.candidates += 1;
+                        match self.candidate(
                             &pts,
                             &normals,
                             &local_ids,
@@ -332,25 +454,34 @@ impl GraspPlanner for AntipodalPlanner {
                             &near_scene,
                             scene_index.as_ref(),
                         ) {
-                            out.push(gr);
+                            Ok(gr) => {
+                                stats.accepted += 1;
+                                out.push(gr);
+                            }
+                            Err(r) => stats.count(r),
                         }
                     }
                 }
-                out
+                (out, stats)
             })
             .collect();
+        let mut stats = PlanStats::default();
+        let mut candidates = Vec::new();
+        for (c, s) in per_seed {
+            candidates.extend(c);
+            stats = stats.add(s);
+        }
         candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
-        Ok(non_maximum_suppression(
+        let kept = non_maximum_suppression(
             candidates,
             o.nms_distance_m,
             o.nms_angle_deg.to_radians(),
             o.top_k,
             g,
-        ))
+        );
+        Ok((kept, stats))
     }
-}
 
-impl AntipodalPlanner {
     /// One candidate: the palm at `palm` (before centring), approach `a`, closing axis `n`.
     #[allow(clippy::too_many_arguments)]
     fn candidate(
@@ -364,23 +495,34 @@ impl AntipodalPlanner {
         cos_cone: f32,
         scene: &[Point3<f32>],
         scene_index: Option<&KdIndex>,
-    ) -> Option<Grasp> {
+    ) -> Result<Grasp, Reject> {
         let o = &self.options;
         let g = &o.gripper;
         // Open fully, find the target's extent along the closing axis, then centre and close.
         let open = Grasp::new(palm, a, n, g.max_aperture * 2.0, 0.0, [palm; 2]);
-        let (hi, lo, _) = jaw_contacts(&open, g, pts, local_ids.iter().copied())?;
+        let (hi, lo, inside) =
+            jaw_contacts(&open, g, pts, local_ids.iter().copied()).ok_or(Reject::NoContact)?;
+        let (hi, lo) = trimmed_contacts(&inside, o.extent_trim).unwrap_or((hi, lo));
         let (yh, yl) = (open.to_local(&pts[hi]).y, open.to_local(&pts[lo]).y);
         // A sheet thinner than two voxels is no grasp (a pinch of a face's edge).
         if yh - yl + 2.0 * o.margin_m > g.max_aperture || yh - yl < 2.0 * o.voxel_m {
-            return None;
+            return Err(Reject::WidthOrThin);
         }
         let width = (yh - yl + 2.0 * o.open_margin_m.max(o.margin_m)).min(g.max_aperture);
         let centred = palm + n * ((yh + yl) / 2.0);
         let grasp = Grasp::new(centred, a, n, width, 0.0, [pts[hi], pts[lo]]);
-        let (hi, lo, inside) = jaw_contacts(&grasp, g, pts, local_ids.iter().copied())?;
-        if inside.iter().any(|(_, l)| l.x < o.palm_clearance_m) {
-            return None;
+        let (hi, lo, inside) =
+            jaw_contacts(&grasp, g, pts, local_ids.iter().copied()).ok_or(Reject::NoContact)?;
+        let (hi, lo) = trimmed_contacts(&inside, o.extent_trim).unwrap_or((hi, lo));
+        // The same share of stray points may come near the palm.
+        let allowed = (o.extent_trim * inside.len() as f32).floor() as usize;
+        if inside
+            .iter()
+            .filter(|(_, l)| l.x < o.palm_clearance_m)
+            .count()
+            > allowed
+        {
+            return Err(Reject::Palm);
         }
         let (yh, yl) = (grasp.to_local(&pts[hi]).y, grasp.to_local(&pts[lo]).y);
         let mut share = [0.0f32; 2];
@@ -391,7 +533,7 @@ impl AntipodalPlanner {
                 .map(|&(i, _)| i)
                 .collect();
             if jaw.len() < o.min_jaw_points {
-                return None;
+                return Err(Reject::JawPoints);
             }
             let good = jaw
                 .iter()
@@ -400,14 +542,15 @@ impl AntipodalPlanner {
             share[side] = good as f32 / jaw.len() as f32;
         }
         if share[0] < 0.25 || share[1] < 0.25 {
-            return None;
+            return Err(Reject::FrictionShare);
         }
         // The evaluator's own criterion on the planning cloud: the contact angle must lie inside
         // the friction cone.
-        let angle = closure_angle(&grasp, pts, normals, &inside, hi, lo, o.jaw_band_m)?;
+        let angle = closure_angle(&grasp, pts, normals, &inside, hi, lo, o.jaw_band_m)
+            .ok_or(Reject::ClosureAngle)?;
         let cone = o.friction_deg.to_radians();
         if angle > cone {
-            return None;
+            return Err(Reject::ClosureAngle);
         }
         if let Some(si) = scene_index {
             let c = grasp.center(g);
@@ -417,13 +560,29 @@ impl AntipodalPlanner {
                 classify(&grasp.to_local(&scene[nb.index as usize]), width, &inflated) == Part::Body
             });
             if hit {
-                return None;
+                return Err(Reject::Collision);
             }
         }
         let support = (inside.len() as f32 / 60.0).min(1.0);
         let score = (share[0] * share[1]).sqrt() * support * (1.0 - angle / cone);
-        Some(Grasp::new(centred, a, n, width, score, [pts[hi], pts[lo]]))
+        Ok(Grasp::new(centred, a, n, width, score, [pts[hi], pts[lo]]))
     }
+}
+
+/// The points at the `trim` quantiles of the closing coordinate among `inside` (upper, lower):
+/// the jaws' contacts with the outermost `trim` share on each side left out. `None` when the
+/// trim leaves out nothing (fewer than one point a side).
+fn trimmed_contacts(inside: &[(usize, Vector3<f32>)], trim: f32) -> Option<(usize, usize)> {
+    let k = (trim * inside.len() as f32).floor() as usize;
+    if k == 0 || 2 * k >= inside.len() {
+        return None;
+    }
+    let mut by_y: Vec<(f32, usize)> = inside.iter().map(|&(i, l)| (l.y, i)).collect();
+    let n = by_y.len();
+    by_y.select_nth_unstable_by(n - 1 - k, |a, b| a.0.total_cmp(&b.0));
+    let hi = by_y[n - 1 - k].1;
+    by_y.select_nth_unstable_by(k, |a, b| a.0.total_cmp(&b.0));
+    Some((hi, by_y[k].1))
 }
 
 fn bounds(pts: &[Point3<f32>]) -> (Point3<f32>, Point3<f32>) {

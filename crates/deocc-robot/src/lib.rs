@@ -14,7 +14,7 @@ pub mod place;
 pub mod range;
 pub mod target;
 
-pub use grasp::{AntipodalPlanner, GraspOptions, GraspPlanner};
+pub use grasp::{AntipodalPlanner, GraspOptions, GraspPlanner, PlanStats};
 pub use gripper::{Grasp, GripperConfig};
 pub use place::{GridPlacer, PlaceMap, PlaceOptions, PlacePlanner, UnseenSpace};
 
