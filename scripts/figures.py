@@ -53,11 +53,21 @@ def table():
     clean, sl = load("perception.json"), load("perception-structured-light.json")
     rec, rec_sl = load("reconstruction.json"), load("reconstruction-structured-light-10.json")
     grasp, place = load("grasp.json"), load("place.json")
+    grasp_sl, place_sl = load("grasp-structured-light.json"), load("place-structured-light.json")
+    v2, v2_sl = load("pickup-v2.json"), load("pickup-v2-structured-light.json")
     objects, amodal = load("objects.json"), load("amodal.json")
     shipped_grasp = row(grasp["rows"], "cloud", "gldot,rules")
     rules_grasp = row(grasp["rows"], "cloud", "rules")
     shipped_place = row(place["rows"], "map", "gldot,rules@placing")
     rules_place = row(place["rows"], "map", "rules@placing")
+    shipped_grasp_sl = row(grasp_sl["rows"], "cloud", "gldot,rules")
+    rules_grasp_sl = row(grasp_sl["rows"], "cloud", "rules")
+    shipped_v2, rules_v2 = row(v2["rows"], "cloud", "gldot,rules"), row(v2["rows"], "cloud", "rules")
+    shipped_v2_sl = row(v2_sl["rows"], "cloud", "gldot,rules")
+    rules_v2_sl = row(v2_sl["rows"], "cloud", "rules")
+    truth_v2 = row(v2["rows"], "cloud", "ground_truth")
+    shipped_place_sl = row(place_sl["rows"], "map", "gldot,rules@placing")
+    rules_place_sl = row(place_sl["rows"], "map", "rules@placing")
     recall = objects["recall_vs_rules"]["gldot,rules"]
     lines = [
         "| benchmark (report) | figure | structured-light sensor (headline) | clean depth (upper reference) | strongest non-learned baseline, clean |",
@@ -81,10 +91,18 @@ def table():
         f"{num(recall['method'])} (paired difference {recall['difference']:+.3f} "
         f"[{recall['ci95'][0]:+.3f}, {recall['ci95'][1]:+.3f}]) | rules {num(recall['baseline'])} |",
         f"| grasping, pickup-v1 {grasp['scenes']} scenes, {grasp['heavy_scenes']} heavily occluded "
-        f"(`grasp.json`) | top-1 success at mu 0.4, heavy occlusion, shipped chain | not yet measured | "
+        f"(`grasp*.json`) | top-1 success at mu 0.4, heavy occlusion, shipped chain | "
+        f"{ci(shipped_grasp_sl['heavy']['top1_at_04'])} (rules "
+        f"{ci(rules_grasp_sl['heavy']['top1_at_04'])}) | "
         f"{ci(shipped_grasp['heavy']['top1_at_04'])} | rules {ci(rules_grasp['heavy']['top1_at_04'])} |",
-        f"| placing, place-v1 {place['scenes']} scenes (`place.json`) | placement success, shipped "
-        f"chain | not yet measured | {ci(shipped_place['success'])} | rules {ci(rules_place['success'])} |",
+        f"| grasping, pickup-v2 {v2['scenes']} scenes, 50-95% hidden (`pickup-v2*.json`) | top-1 "
+        f"success at mu 0.4, shipped chain (planner on the true full cloud: "
+        f"{num(truth_v2['all']['top1_at_04']['mean'])}) | "
+        f"{ci(shipped_v2_sl['all']['top1_at_04'])} (rules {ci(rules_v2_sl['all']['top1_at_04'])}) | "
+        f"{ci(shipped_v2['all']['top1_at_04'])} | rules {ci(rules_v2['all']['top1_at_04'])} |",
+        f"| placing, place-v1 {place['scenes']} scenes (`place*.json`) | placement success, shipped "
+        f"chain | {ci(shipped_place_sl['success'])} (rules {ci(rules_place_sl['success'])}) | "
+        f"{ci(shipped_place['success'])} | rules {ci(rules_place['success'])} |",
         f"| amodal completion, {amodal['pairs']} {amodal['split']} pairs (`amodal.json`) | mask mIoU, "
         f"GL-DoT | not yet measured | {num(amodal['miou_model'])} | rules {num(amodal['miou_rules'])} |",
     ]

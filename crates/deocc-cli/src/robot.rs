@@ -177,6 +177,11 @@ struct GraspAnswer<'a> {
     planner: &'a str,
     gripper: deocc_robot::GripperConfig,
     grasps: Vec<deocc_robot::Grasp>,
+    /// When there is no grasp: the check that turned most candidates down, in words.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    why_none: Option<&'static str>,
+    /// Every candidate pose and why each was turned down.
+    plan_stats: deocc_robot::PlanStats,
 }
 
 /// The instance `--target-pixel` / `--target-box` point at, with how it was found.
@@ -276,9 +281,37 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     let planner = AntipodalPlanner {
         options: options.clone(),
     };
-    let grasps = planner
-        .plan(&cloud.positions, &target)
+    // The envelope of `generated_error_m`: each generated point's stated expected error.
+    let errors = (options.generated_error_m > 0.0)
+        .then(|| {
+            cloud
+                .generated
+                .as_deref()
+                .map(|g| deocc_robot::grasp::stated_errors(g, &options))
+        })
+        .flatten();
+    let target_errors: Option<Vec<f32>> = errors.as_ref().map(|e| {
+        e.iter()
+            .zip(&ids)
+            .filter(|(_, &i)| i == target_id)
+            .map(|(e, _)| *e)
+            .collect()
+    });
+    let (grasps, stats) = planner
+        .plan_with_errors(
+            &cloud.positions,
+            errors.as_deref(),
+            &target,
+            target_errors.as_deref(),
+        )
         .map_err(|e| anyhow::anyhow!("--target {}: {e}", target_id))?;
+    let why_none = stats.main_reason().filter(|_| grasps.is_empty());
+    if let Some(why) = why_none {
+        eprintln!(
+            "no grasp on instance {target_id}: {why} ({} candidate poses tried)",
+            stats.candidates
+        );
+    }
     let mut img = deocc_pipeline::render::splat(&cloud, &camera, 1, true);
     let project = |p: &nalgebra::Point3<f32>| camera.project_world(p).map(|(px, _)| [px.x, px.y]);
     for (k, g) in grasps.iter().enumerate().rev() {
@@ -309,6 +342,8 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
             planner: planner.name(),
             gripper: options.gripper,
             grasps,
+            why_none,
+            plan_stats: stats,
         },
         &img,
     )

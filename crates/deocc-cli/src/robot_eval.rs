@@ -12,11 +12,16 @@ pub struct GraspArgs {
     /// GL-DoT model folder; default: the built-in model.
     #[arg(long)]
     weights: Option<PathBuf>,
-    /// Number of pickup-v1 scenes (the first N of its 120).
+    /// The benchmark: pickup-v1 (bottles and cans behind a box, 5-95% visible) or pickup-v2
+    /// (shouldered, faceted and flattened bottles, cans, mugs, small boxes behind a box, a
+    /// carton or a jar, 5-50% visible).
+    #[arg(long, default_value = "pickup-v1", value_parser = ["pickup-v1", "pickup-v2"])]
+    preset: String,
+    /// Number of scenes (the first N of the preset's 120).
     #[arg(long, default_value_t = 120)]
     scenes: usize,
-    /// Score pickup-v1-like scenes of other seeds (9,250,000 on), not the test scenes: where
-    /// the planner's and the revolve stage's limits are chosen.
+    /// Score scenes of other seeds (pickup-v1: 9,250,000 on; pickup-v2: 9,450,000 on), not
+    /// the test scenes: where the planner's and the revolve stage's limits are chosen.
     #[arg(long)]
     tuning: bool,
     #[command(flatten)]
@@ -33,11 +38,15 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
     let chains = grasp_chains(a.weights.as_ref(), &opts)?;
     let options = crate::robot::grasp_options(a.grasp_options.as_deref())?;
-    let mut preset = deocc_synth::dataset::pickup_v1();
+    let (mut preset, tuning_from) = if a.preset == "pickup-v2" {
+        (deocc_synth::dataset::pickup_v2(), 9_450_000)
+    } else {
+        (deocc_synth::dataset::pickup_v1(), 9_250_000)
+    };
     a.sensor.apply(&mut preset)?;
     if a.tuning {
         preset.name = format!("{} tuning scenes", preset.name);
-        preset.seeds = (9_250_000..9_250_000 + a.scenes as u64).collect();
+        preset.seeds = (tuning_from..tuning_from + a.scenes as u64).collect();
     }
     let n = a.scenes.min(preset.seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");

@@ -137,6 +137,33 @@ fn every_evaluation_runs_at_smoke_size() {
     assert!(obj.is_object());
     let place = report(d, "place", &["eval", "place", "--scenes", "1"]);
     assert!(place.is_object());
+    // pickup-v2 under a sensor: its first seed's target is a mug (the seed fixes the kind), and
+    // every row reports it by kind and visibility, with the planner's reasons per scene.
+    let v2 = report(
+        d,
+        "pickup-v2",
+        &[
+            "eval",
+            "grasp",
+            "--preset",
+            "pickup-v2",
+            "--scenes",
+            "1",
+            "--sensor",
+            "structured-light",
+        ],
+    );
+    assert!(v2["benchmark"].as_str().unwrap().starts_with("pickup-v2"));
+    for row in v2["rows"].as_array().unwrap() {
+        assert_eq!(row["by_target"]["mug"]["scenes"], 1, "{row}");
+        assert_eq!(row["by_visibility"].as_array().unwrap().len(), 3);
+    }
+    let scene = &v2["per_scene"][1][1][0];
+    assert!(
+        scene["visible_fraction"].as_f64().unwrap() <= 0.5,
+        "{scene}"
+    );
+    assert!(scene["plan_stats"]["candidates"].is_u64(), "{scene}");
     let depth = report(
         d,
         "depth",

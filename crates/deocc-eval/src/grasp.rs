@@ -31,6 +31,12 @@ pub const AFFORDANCE_RADIUS_M: f32 = 0.01;
 pub const AFFORDANCE_MU: f32 = 0.8;
 /// Heavy occlusion: the target's visible fraction below this.
 pub const HEAVY_BELOW: f64 = 0.5;
+/// The visibility bins of the report: (name, from, below).
+pub const VISIBILITY_BINS: [(&str, f64, f64); 3] = [
+    ("under 25% visible", 0.0, 0.25),
+    ("25-50% visible", 0.25, 0.5),
+    ("over 50% visible", 0.5, 1.01),
+];
 
 /// One cloud of one scene.
 #[derive(Debug, Clone, Serialize)]
@@ -82,6 +88,12 @@ pub struct GraspRow {
     pub all: Subset,
     pub light: Subset,
     pub heavy: Subset,
+    /// By the target's category (pickup-v2: bottle, faceted_bottle, flask, can, mug, box).
+    pub by_target: std::collections::BTreeMap<String, Subset>,
+    /// By the target's visible share of its silhouette: under 25%, 25-50%, over 50%.
+    pub by_visibility: Vec<(String, Subset)>,
+    /// This row's top-1 success at mu 0.4 over the ground-truth cloud's (all scenes).
+    pub top1_at_04_over_ground_truth: f64,
     /// Top-1 success at mu 0.4 against the observed cloud, paired over scenes.
     pub top1_at_04_vs_observed: Comparison,
     pub top1_at_04_vs_observed_heavy: Comparison,
@@ -112,6 +124,7 @@ pub fn score_cloud(
     options: &GraspOptions,
     scene_points: &[Point3<f32>],
     instance: &[u32],
+    errors: Option<&[f32]>,
     target: u32,
     gt: &GroundTruthScene,
     true_contacts: Option<&[[f32; 3]]>,
@@ -124,9 +137,21 @@ pub fn score_cloud(
         .filter(|(_, &i)| i == target)
         .map(|(p, _)| *p)
         .collect();
+    let target_errors: Option<Vec<f32>> = errors.map(|e| {
+        e.iter()
+            .zip(instance)
+            .filter(|(_, &i)| i == target)
+            .map(|(e, _)| *e)
+            .collect()
+    });
     let (grasps, plan_stats) = if target_points.len() >= 2 * options.min_jaw_points {
         planner
-            .plan_with_stats(scene_points, &target_points)
+            .plan_with_errors(
+                scene_points,
+                errors,
+                &target_points,
+                target_errors.as_deref(),
+            )
             .map_err(|e| EvalError::Data(e.to_string()))?
     } else {
         (Vec::new(), PlanStats::default())
@@ -259,6 +284,7 @@ pub fn grasp_benchmark(
             options,
             &gt_cloud.positions,
             &gt_ids,
+            None,
             target as u32,
             &gt,
             None,
@@ -286,12 +312,22 @@ pub fn grasp_benchmark(
             let ids = cloud.instance.clone().ok_or_else(|| {
                 EvalError::Data("the pipeline's cloud has no instance ids".into())
             })?;
+            // The planner's envelope: the stated error of each generated point.
+            let errors = (options.generated_error_m > 0.0)
+                .then(|| {
+                    cloud
+                        .generated
+                        .as_deref()
+                        .map(|g| deocc_robot::grasp::stated_errors(g, options))
+                })
+                .flatten();
             let (mut row, _) = score_cloud(
                 table,
                 &planner,
                 options,
                 &cloud.positions,
                 &ids,
+                errors.as_deref(),
                 target as u32,
                 &gt,
                 Some(&true_contacts),
@@ -341,6 +377,28 @@ pub fn grasp_benchmark(
                 let c: Vec<u32> = (0..a.len() as u32).collect();
                 compare(&a, &b, &c, 1000, 11)
             };
+            let mut by_target = std::collections::BTreeMap::new();
+            let mut categories: Vec<&str> =
+                per[k].iter().map(|r| r.target_category.as_str()).collect();
+            categories.sort_unstable();
+            categories.dedup();
+            for c in categories {
+                let rs: Vec<&SceneGrasps> =
+                    per[k].iter().filter(|r| r.target_category == c).collect();
+                by_target.insert(c.to_string(), subset(&rs));
+            }
+            let by_visibility = VISIBILITY_BINS
+                .iter()
+                .map(|&(name, lo, hi)| {
+                    let rs: Vec<&SceneGrasps> = per[k]
+                        .iter()
+                        .filter(|r| r.visible_fraction >= lo && r.visible_fraction < hi)
+                        .collect();
+                    (name.to_string(), subset(&rs))
+                })
+                .collect();
+            let rate = crate::stats::mean(top1(&per[k], &|_| true));
+            let gt_rate = crate::stats::mean(top1(&per[gt_k], &|_| true));
             let heavy_rate = crate::stats::mean(top1(&per[k], &heavy_of));
             let gt_heavy = crate::stats::mean(top1(&per[gt_k], &heavy_of));
             let secs: Vec<f64> = per[k].iter().map(|r| r.seconds).collect();
@@ -349,6 +407,9 @@ pub fn grasp_benchmark(
                 all: subset(&all),
                 light: subset(&light),
                 heavy: subset(&heavy),
+                by_target,
+                by_visibility,
+                top1_at_04_over_ground_truth: rate / gt_rate,
                 top1_at_04_vs_observed: vs(&|_| true),
                 top1_at_04_vs_observed_heavy: vs(&heavy_of),
                 top1_at_04_over_ground_truth_heavy: heavy_rate / gt_heavy,

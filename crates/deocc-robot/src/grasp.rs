@@ -176,6 +176,12 @@ pub struct GraspOptions {
     /// surface every few millimetres and a completed side is uncertain by as much, so a finger
     /// that slips between the points of an occluder's face would hit the face itself.
     pub collision_margin_m: f32,
+    /// The expected error of a generated point where the cloud carries no better estimate
+    /// ([`stated_errors`]; observed points: 0), metres. The planner treats each point as a ball
+    /// of its expected error: the target's extent across the jaws is that of the balls (a
+    /// finger may not close where the object could be) and no finger or palm may touch another
+    /// point's ball, while the contacts are scored on the points themselves. 0 = off.
+    pub generated_error_m: f32,
     /// Gravity's opposite in the cloud's frame (z up for the renderer's scenes).
     pub up: [f32; 3],
     /// Approaches with a larger upward component (moving up into the object) are not tried.
@@ -204,6 +210,7 @@ impl Default for GraspOptions {
             open_margin_m: 0.02,
             palm_clearance_m: 0.01,
             collision_margin_m: 0.005,
+            generated_error_m: 0.0,
             up: [0.0, 0.0, 1.0],
             max_upward: 0.3,
             nms_distance_m: 0.03,
@@ -262,6 +269,7 @@ impl GraspOptions {
             0.049,
             " m",
         )?;
+        real("generated_error_m", self.generated_error_m, 0.0, 0.05, " m")?;
         real("max_upward", self.max_upward, -1.0, 1.0, "")?;
         real("nms_distance_m", self.nms_distance_m, 0.0, 1.0, " m")?;
         real("nms_angle_deg", self.nms_angle_deg, 0.0, 180.0, " degrees")?;
@@ -274,6 +282,22 @@ impl GraspOptions {
 #[derive(Debug, Clone, Default)]
 pub struct AntipodalPlanner {
     pub options: GraspOptions,
+}
+
+/// Each point's expected error for the planner from its provenance code
+/// (`deocc_geometry::Provenance`): 0 for an observed point (code 0), `generated_error_m` for any
+/// generated one. The stated estimate for clouds whose completer gave no error of its own.
+pub fn stated_errors(provenance: &[u8], options: &GraspOptions) -> Vec<f32> {
+    provenance
+        .iter()
+        .map(|&p| {
+            if p == 0 {
+                0.0
+            } else {
+                options.generated_error_m
+            }
+        })
+        .collect()
 }
 
 /// Any unit vector perpendicular to `n`.
@@ -381,7 +405,37 @@ impl AntipodalPlanner {
         scene: &[Point3<f32>],
         target: &[Point3<f32>],
     ) -> Result<(Vec<Grasp>, PlanStats), RobotError> {
+        self.plan_with_errors(scene, None, target, None)
+    }
+
+    /// [`Self::plan_with_stats`] with each point's expected error (metres; `None`: all 0): the
+    /// uncertainty-aware plan of [`GraspOptions::generated_error_m`]'s docs.
+    pub fn plan_with_errors(
+        &self,
+        scene: &[Point3<f32>],
+        scene_error: Option<&[f32]>,
+        target: &[Point3<f32>],
+        target_error: Option<&[f32]>,
+    ) -> Result<(Vec<Grasp>, PlanStats), RobotError> {
         let o = &self.options;
+        for (what, err, n) in [
+            ("scene", scene_error, scene.len()),
+            ("target", target_error, target.len()),
+        ] {
+            if let Some(e) = err {
+                if e.len() != n {
+                    return Err(RobotError::Input(format!(
+                        "{} expected errors for {n} {what} points",
+                        e.len()
+                    )));
+                }
+                if let Some(bad) = e.iter().find(|x| !(x.is_finite() && **x >= 0.0)) {
+                    return Err(RobotError::Input(format!(
+                        "a {what} point's expected error is {bad}: must be finite and >= 0"
+                    )));
+                }
+            }
+        }
         o.validate()?;
         let g = &o.gripper;
         if target.len() < 2 * o.min_jaw_points {
@@ -396,17 +450,31 @@ impl AntipodalPlanner {
             o.voxel_m as f64,
         )?;
         let pts = thin.positions;
+        // Each thinned point takes the expected error of the target point nearest it.
+        let terr: Vec<f32> = match target_error {
+            Some(e) => {
+                let original = KdIndex::build(target)?;
+                pts.iter()
+                    .map(|p| e[original.nearest(p).index as usize])
+                    .collect()
+            }
+            None => vec![0.0; pts.len()],
+        };
         let index = KdIndex::build(&pts)?;
         let normals = estimate_normals_with_index(&pts, &index, o.normal_neighbours);
         // Only the scene near the target can touch the gripper.
         let (lo, hi) = bounds(&pts);
         let reach = g.depth + g.palm_thickness + g.max_aperture + g.finger_width;
-        let near_scene: Vec<Point3<f32>> = scene
-            .iter()
-            .filter(|p| {
+        let near: Vec<usize> = (0..scene.len())
+            .filter(|&i| {
+                let p = &scene[i];
                 (0..3).all(|k| p[k] >= lo[k] - reach && p[k] <= hi[k] + reach) && p.x.is_finite()
             })
-            .copied()
+            .collect();
+        let near_scene: Vec<Point3<f32>> = near.iter().map(|&i| scene[i]).collect();
+        let serr: Vec<f32> = near
+            .iter()
+            .map(|&i| scene_error.map_or(0.0, |e| e[i]))
             .collect();
         let scene_index = if near_scene.is_empty() {
             None
@@ -453,6 +521,8 @@ impl AntipodalPlanner {
                             cos_cone,
                             &near_scene,
                             scene_index.as_ref(),
+                            &terr,
+                            &serr,
                         ) {
                             Ok(gr) => {
                                 stats.accepted += 1;
@@ -495,6 +565,8 @@ impl AntipodalPlanner {
         cos_cone: f32,
         scene: &[Point3<f32>],
         scene_index: Option<&KdIndex>,
+        terr: &[f32],
+        serr: &[f32],
     ) -> Result<Grasp, Reject> {
         let o = &self.options;
         let g = &o.gripper;
@@ -503,7 +575,26 @@ impl AntipodalPlanner {
         let (hi, lo, inside) =
             jaw_contacts(&open, g, pts, local_ids.iter().copied()).ok_or(Reject::NoContact)?;
         let (hi, lo) = trimmed_contacts(&inside, o.extent_trim).unwrap_or((hi, lo));
-        let (yh, yl) = (open.to_local(&pts[hi]).y, open.to_local(&pts[lo]).y);
+        let (mut yh, mut yl) = (open.to_local(&pts[hi]).y, open.to_local(&pts[lo]).y);
+        // The envelope: each point a ball of its expected error, trimmed alike.
+        if terr.iter().any(|&e| e > 0.0) {
+            let grown: Vec<(usize, Vector3<f32>)> = inside
+                .iter()
+                .map(|&(i, l)| (i, l + Vector3::y() * terr[i]))
+                .collect();
+            let shrunk: Vec<(usize, Vector3<f32>)> = inside
+                .iter()
+                .map(|&(i, l)| (i, l - Vector3::y() * terr[i]))
+                .collect();
+            let k = (o.extent_trim * inside.len() as f32).floor() as usize;
+            let at = |v: &[(usize, Vector3<f32>)], rank: usize| {
+                let mut ys: Vec<f32> = v.iter().map(|(_, l)| l.y).collect();
+                let rank = rank.min(ys.len() - 1);
+                *ys.select_nth_unstable_by(rank, |a, b| a.total_cmp(b)).1
+            };
+            yh = yh.max(at(&grown, grown.len().saturating_sub(1 + k)));
+            yl = yl.min(at(&shrunk, k));
+        }
         // A sheet thinner than two voxels is no grasp (a pinch of a face's edge).
         if yh - yl + 2.0 * o.margin_m > g.max_aperture || yh - yl < 2.0 * o.voxel_m {
             return Err(Reject::WidthOrThin);
@@ -526,6 +617,7 @@ impl AntipodalPlanner {
         }
         let (yh, yl) = (grasp.to_local(&pts[hi]).y, grasp.to_local(&pts[lo]).y);
         let mut share = [0.0f32; 2];
+        let (mut sure, mut jaw_points) = (0usize, 0usize);
         for (side, edge) in [(0usize, yh), (1, yl)] {
             let jaw: Vec<usize> = inside
                 .iter()
@@ -535,6 +627,8 @@ impl AntipodalPlanner {
             if jaw.len() < o.min_jaw_points {
                 return Err(Reject::JawPoints);
             }
+            sure += jaw.iter().filter(|&&i| terr[i] < 1e-3).count();
+            jaw_points += jaw.len();
             let good = jaw
                 .iter()
                 .filter(|&&i| normals[i].dot(&n).abs() >= cos_cone)
@@ -555,9 +649,17 @@ impl AntipodalPlanner {
         if let Some(si) = scene_index {
             let c = grasp.center(g);
             let inflated = g.inflated(o.collision_margin_m);
-            let r = inflated.bounding_radius(width) + o.collision_margin_m;
+            let most = serr.iter().copied().fold(0.0f32, f32::max);
+            let r = inflated.bounding_radius(width) + o.collision_margin_m + most;
             let hit = si.within(&c, r).into_iter().any(|nb| {
-                classify(&grasp.to_local(&scene[nb.index as usize]), width, &inflated) == Part::Body
+                let k = nb.index as usize;
+                let local = grasp.to_local(&scene[k]);
+                if serr[k] > 0.0 {
+                    classify(&local, width, &g.inflated(o.collision_margin_m + serr[k]))
+                        == Part::Body
+                } else {
+                    classify(&local, width, &inflated) == Part::Body
+                }
             });
             if hit {
                 return Err(Reject::Collision);
@@ -565,7 +667,9 @@ impl AntipodalPlanner {
         }
         let support = (inside.len() as f32 / 60.0).min(1.0);
         let score = (share[0] * share[1]).sqrt() * support * (1.0 - angle / cone);
-        Ok(Grasp::new(centred, a, n, width, score, [pts[hi], pts[lo]]))
+        let mut grasp = Grasp::new(centred, a, n, width, score, [pts[hi], pts[lo]]);
+        grasp.confidence = sure as f32 / jaw_points.max(1) as f32;
+        Ok(grasp)
     }
 }
 

@@ -106,6 +106,15 @@ pub struct Grasp {
     /// Where the jaws touch the cloud the grasp was planned on (world frame): the first points
     /// each jaw meets as it closes.
     pub contacts: [[f32; 3]; 2],
+    /// How far the planner trusts the surface under the jaws, in [0, 1]: the share of the
+    /// jaws' points whose expected error is under a millimetre (observed points, or generated
+    /// ones the completer is sure of). 1 when the cloud came without expected errors.
+    #[serde(default = "full_confidence")]
+    pub confidence: f32,
+}
+
+fn full_confidence() -> f32 {
+    1.0
 }
 
 impl Grasp {
@@ -131,6 +140,7 @@ impl Grasp {
             width,
             score,
             contacts: contacts.map(|c| c.coords.into()),
+            confidence: 1.0,
         }
     }
 

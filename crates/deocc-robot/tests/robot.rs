@@ -654,3 +654,83 @@ fn a_few_noisy_points_do_not_make_a_can_too_wide() {
         "trimmed {kept:?}\nextreme {st:?}"
     );
 }
+
+/// The envelope: a box whose far half is generated with 2 cm of expected error. Every grasp
+/// the planner returns opens around the grown far side (no finger where the box could be), a
+/// grasp whose jaws touch generated points reports less than full confidence, and errors that
+/// do not match the points are refused by name.
+#[test]
+fn expected_errors_grow_the_target_the_fingers_must_clear() {
+    let mut r = ChaCha8Rng::seed_from_u64(8);
+    let mut s = Samples::default();
+    s.table(&mut r, 0.75);
+    s.cuboid(
+        &mut r,
+        Point3::new(-0.025, -0.025, 0.75),
+        Point3::new(0.025, 0.025, 0.87),
+        2,
+    );
+    // The far half (y > 0, away from a camera at -y) is generated, 2 cm uncertain.
+    let errors: Vec<f32> = s
+        .points
+        .iter()
+        .zip(&s.instance)
+        .map(|(p, &i)| if i == 2 && p.y > 0.0 { 0.02 } else { 0.0 })
+        .collect();
+    let target = s.of(2);
+    let target_errors: Vec<f32> = errors
+        .iter()
+        .zip(&s.instance)
+        .filter(|(_, &i)| i == 2)
+        .map(|(e, _)| *e)
+        .collect();
+    let planner = AntipodalPlanner::default();
+    let (plain, _) = planner.plan_with_stats(&s.points, &target).unwrap();
+    assert!(plain.iter().all(|g| g.confidence == 1.0));
+    let (grasps, _) = planner
+        .plan_with_errors(&s.points, Some(&errors), &target, Some(&target_errors))
+        .unwrap();
+    assert!(!grasps.is_empty());
+    let g = GripperConfig::default();
+    // The share of the target's points between the fingers' extent whose grown point lies
+    // under a finger.
+    let under_finger = |grasp: &deocc_robot::Grasp| {
+        let (mut between, mut under) = (0usize, 0usize);
+        for (p, e) in target.iter().zip(&target_errors) {
+            let l = grasp.to_local(p);
+            if l.x >= 0.0 && l.x <= g.depth && l.z.abs() <= g.finger_height / 2.0 {
+                between += 1;
+                if l.y.abs() + e > grasp.width / 2.0 + 1e-4 {
+                    under += 1;
+                }
+            }
+        }
+        under as f32 / between.max(1) as f32
+    };
+    for grasp in &grasps {
+        let share = under_finger(grasp);
+        assert!(share <= 0.05, "{share} of the grown points under a finger");
+    }
+    // Planned on the best estimate alone, some grasp closes a finger where the box could be.
+    assert!(
+        plain.iter().any(|g| under_finger(g) > 0.2),
+        "the plain plan already clears the envelope: {:?}",
+        plain.iter().map(under_finger).collect::<Vec<_>>()
+    );
+    assert!(
+        grasps.iter().any(|g| g.confidence < 1.0),
+        "no grasp touches the generated half"
+    );
+    let e = planner
+        .plan_with_errors(&s.points, Some(&errors[..3]), &target, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("scene"), "{e}");
+    let mut bad = target_errors.clone();
+    bad[0] = f32::NAN;
+    let e = planner
+        .plan_with_errors(&s.points, None, &target, Some(&bad))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("target") && e.contains("NaN"), "{e}");
+}

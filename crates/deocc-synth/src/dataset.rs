@@ -467,6 +467,24 @@ pub fn pickup_v1() -> Preset {
     }
 }
 
+/// `pickup-v2`: 120 robot-head views of harder targets ([`crate::tasks::PICKUP_V2_TARGETS`]:
+/// shouldered, faceted and flattened bottles, cans, mugs with handles, small boxes) behind a
+/// box, a carton or a jar, 50-95% hidden ([`crate::tasks::pickup_v2_scene`]); seeds
+/// 9_400_000..9_400_120 (tuning scenes from 9_450_000).
+pub fn pickup_v2() -> Preset {
+    Preset {
+        name: "pickup-v2".into(),
+        config: SceneConfig {
+            kind: SceneKind::PickupV2,
+            views: 1,
+            camera_path: CameraPath::Single,
+            gt_points_per_m2: 2_000.0,
+            ..SceneConfig::default()
+        },
+        seeds: (9_400_000..9_400_120).collect(),
+    }
+}
+
 /// `place-v1`: 100 cluttered tables (6-10 things) seen once from 1.5-2.5 m, at least 30% of the
 /// free table top hidden ([`crate::tasks::place_scene`]); seeds 9_300_000..9_300_100.
 pub fn place_v1() -> Preset {

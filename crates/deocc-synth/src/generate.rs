@@ -8,6 +8,7 @@ pub fn generate_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthErr
     match config.kind {
         SceneKind::Indoor => indoor_scene(config, seed),
         SceneKind::Pickup => crate::tasks::pickup_scene(config, seed),
+        SceneKind::PickupV2 => crate::tasks::pickup_v2_scene(config, seed),
         SceneKind::Place => crate::tasks::place_scene(config, seed),
     }
 }

@@ -44,6 +44,9 @@ pub enum SceneKind {
     /// A grasp target hidden behind a large occluder on a table, one robot-head view
     /// ([`crate::tasks::pickup_scene`]).
     Pickup,
+    /// pickup-v2: harder targets (faceted, flattened, handled, boxes) behind occluders of three
+    /// kinds, 50-95% hidden ([`crate::tasks::pickup_v2_scene`]).
+    PickupV2,
     /// A cluttered table whose free surface is partly hidden, one view
     /// ([`crate::tasks::place_scene`]).
     Place,

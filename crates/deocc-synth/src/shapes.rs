@@ -37,6 +37,12 @@ pub enum Category {
     Stool,
     /// A small table: a top on four legs, table-top scale (the chair-legs case in miniature).
     MiniTable,
+    /// A bottle whose body is a hexagonal or octagonal prism under a shoulder and neck: faceted
+    /// (pickup-v2's targets).
+    FacetedBottle,
+    /// A flask: a shouldered bottle squashed to an elliptical section, twice as wide one way as
+    /// the other: not a solid of revolution (pickup-v2's targets).
+    Flask,
 }
 
 impl Category {
@@ -72,6 +78,8 @@ impl Category {
             Category::Frame => "frame",
             Category::Stool => "stool",
             Category::MiniTable => "mini_table",
+            Category::FacetedBottle => "faceted_bottle",
+            Category::Flask => "flask",
         }
     }
 
@@ -97,7 +105,7 @@ impl Category {
     ];
 
     /// Every category, in declaration order (the order of the `u8` codes in pair shards).
-    pub const ALL: [Category; 20] = [
+    pub const ALL: [Category; 22] = [
         Category::Floor,
         Category::Wall,
         Category::Table,
@@ -118,6 +126,8 @@ impl Category {
         Category::Frame,
         Category::Stool,
         Category::MiniTable,
+        Category::FacetedBottle,
+        Category::Flask,
     ];
 
     /// The category of a `u8` code of a pair shard.
@@ -303,27 +313,79 @@ pub fn tabletop(category: Category, r: &mut impl Rng) -> Shape {
                 mesh: m,
             }
         }
-        Category::Mug => {
-            let (rad, h) = (u(r, 0.035, 0.05), u(r, 0.08, 0.12));
-            let wall = 0.006;
-            // Outer wall, rim, inner wall down to an inner bottom.
-            let body = lathe(
-                &[(rad, 0.0), (rad, h), (rad - wall, h), (rad - wall, wall)],
-                SEG,
+        Category::Mug => mug(r, 0.035, 0.05),
+        Category::FacetedBottle => {
+            let (rad, h) = (u(r, 0.028, 0.036), u(r, 0.18, 0.28));
+            let sides = if r.random_bool(0.5) { 6 } else { 8 };
+            let neck = rad * u(r, 0.35, 0.45);
+            let body = h * u(r, 0.55, 0.7);
+            let m = lathe(
+                &[
+                    (rad, 0.0),
+                    (rad, body),
+                    (neck, body + (h - body) * 0.5),
+                    (neck, h),
+                ],
+                sides,
                 true,
                 true,
             );
-            let handle = tube_arc(h * 0.3, 0.008, -1.4, 1.4, 10, 6).translated(Vector3::new(
-                rad,
-                0.0,
-                h * 0.5,
-            ));
             Shape {
-                footprint_radius: rad + h * 0.3,
+                footprint_radius: rad,
                 height: h,
-                mesh: TriMesh::merged(&[body, handle]),
+                mesh: m,
             }
         }
+        Category::Flask => {
+            let (rad, h) = (u(r, 0.045, 0.06), u(r, 0.16, 0.24));
+            let squash = u(r, 0.45, 0.6);
+            let neck = 0.012;
+            let body = h * u(r, 0.6, 0.72);
+            let m = lathe(
+                &[
+                    (rad, 0.0),
+                    (rad, body),
+                    (neck / squash, body + (h - body) * 0.6),
+                    (neck / squash, h),
+                ],
+                SEG,
+                true,
+                true,
+            )
+            .scaled(Vector3::new(1.0, squash, 1.0));
+            Shape {
+                footprint_radius: rad,
+                height: h,
+                mesh: m,
+            }
+        }
+        _ => tabletop_other(category, r),
+    }
+}
+
+/// A mug whose body radius is drawn from `[lo, hi)`: a wall with a rim and an inner bottom, and
+/// a handle on +x.
+pub fn mug(r: &mut impl Rng, lo: f32, hi: f32) -> Shape {
+    let (rad, h) = (u(r, lo, hi), u(r, 0.08, 0.12));
+    let wall = 0.006;
+    // Outer wall, rim, inner wall down to an inner bottom.
+    let body = lathe(
+        &[(rad, 0.0), (rad, h), (rad - wall, h), (rad - wall, wall)],
+        SEG,
+        true,
+        true,
+    );
+    let handle =
+        tube_arc(h * 0.3, 0.008, -1.4, 1.4, 10, 6).translated(Vector3::new(rad, 0.0, h * 0.5));
+    Shape {
+        footprint_radius: rad + h * 0.3,
+        height: h,
+        mesh: TriMesh::merged(&[body, handle]),
+    }
+}
+
+fn tabletop_other(category: Category, r: &mut impl Rng) -> Shape {
+    match category {
         Category::Bowl => {
             let (rad, h) = (u(r, 0.06, 0.11), u(r, 0.04, 0.07));
             let wall = 0.005;

@@ -6,6 +6,11 @@
 //!   1.0-1.5 m (horizontally) from the target. Attempts are redrawn until 5-95% of the target's
 //!   silhouette is visible (a target nobody sees cannot be asked for; one nobody hides tests
 //!   nothing).
+//! - **pickup-v2** ([`pickup_v2_scene`]): the same room and robot, harder targets and
+//!   occluders: shouldered, faceted and flattened (not round) bottles, cans, mugs with
+//!   handles, small boxes ([`PICKUP_V2_TARGETS`], the kind fixed by the seed, each no wider
+//!   than 7.4 cm across its narrow side); behind a large box, a tall carton or a wide jar; redrawn until 5-50% of the
+//!   target's silhouette is visible (50-95% hidden).
 //! - **place** ([`place_scene`]): a cluttered table (`tabletop_objects_min..=max` things: 6-10
 //!   in place-v1, 12-18 in place-v2) seen once from 1.5-2.5 m; redrawn until at least 30% of the
 //!   table's free surface is hidden from the view.
@@ -32,6 +37,18 @@ use crate::SynthError;
 /// most [`MAX_TARGET_RADIUS_M`] in radius (the default gripper opens 8.5 cm).
 pub const PICKUP_TARGETS: [Category; 3] = [Category::Bottle, Category::Can, Category::Mug];
 pub const MAX_TARGET_RADIUS_M: f32 = 0.036;
+
+/// pickup-v2's targets ([`pickup_v2_scene`]).
+pub const PICKUP_V2_TARGETS: [Category; 6] = [
+    Category::Bottle,
+    Category::FacetedBottle,
+    Category::Flask,
+    Category::Can,
+    Category::Mug,
+    Category::Box,
+];
+/// The widest a pickup-v2 target is across its narrow side.
+pub const MAX_V2_NARROW_SIDE_M: f32 = 0.074;
 
 const ATTEMPTS: u64 = 64;
 
@@ -84,18 +101,58 @@ fn scatter(
 
 /// A pickup scene (see the module docs); `Scene::target` names the target.
 pub fn pickup_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
+    pickup_of(config, seed, false)
+}
+
+/// A pickup-v2 scene (see the module docs); `Scene::target` names the target.
+pub fn pickup_v2_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError> {
+    pickup_of(config, seed, true)
+}
+
+fn pickup_of(config: &SceneConfig, seed: u64, v2: bool) -> Result<Scene, SynthError> {
+    let visible = if v2 { 0.05..=0.5 } else { 0.05..=0.95 };
     for k in 0..ATTEMPTS {
-        let Some(scene) = pickup_attempt(config, seed, seed.wrapping_mul(64).wrapping_add(k))?
-        else {
+        let stream = seed.wrapping_mul(64).wrapping_add(k);
+        let Some(scene) = pickup_attempt(config, seed, stream, v2)? else {
             continue;
         };
-        if target_visible_fraction(&scene).is_some_and(|f| (0.05..=0.95).contains(&f)) {
+        if target_visible_fraction(&scene).is_some_and(|f| visible.contains(&f)) {
             return Ok(scene);
         }
     }
     Err(SynthError::Config(format!(
-        "pickup seed {seed}: no attempt of {ATTEMPTS} hid 5-95% of the target"
+        "pickup seed {seed}: no attempt of {ATTEMPTS} left {:.0}-{:.0}% of the target visible",
+        visible.start() * 100.0,
+        visible.end() * 100.0
     )))
+}
+
+/// A pickup-v2 target of `category` narrow enough for the gripper; `None` when 50 draws were
+/// all too wide.
+fn v2_target(category: Category, r: &mut impl Rng) -> Option<shapes::Shape> {
+    for _ in 0..50 {
+        let shape = match category {
+            Category::Mug => shapes::mug(r, 0.03, 0.037),
+            Category::Box => {
+                let s = Vector3::<f32>::new(
+                    r.random_range(0.04..0.07),
+                    r.random_range(0.04..0.09),
+                    r.random_range(0.08..0.18),
+                );
+                shapes::Shape {
+                    footprint_radius: (s.x * s.x + s.y * s.y).sqrt() / 2.0,
+                    height: s.z,
+                    mesh: box_on(s, (0.0, 0.0), 0.0),
+                }
+            }
+            c => shapes::tabletop(c, r),
+        };
+        let (lo, hi) = shape.mesh.bounds()?;
+        if (hi.x - lo.x).min(hi.y - lo.y) <= MAX_V2_NARROW_SIDE_M {
+            return Some(shape);
+        }
+    }
+    None
 }
 
 /// The target's visible share of its silhouette in the first view; `None` when it is out of
@@ -122,6 +179,7 @@ fn pickup_attempt(
     config: &SceneConfig,
     seed: u64,
     stream: u64,
+    v2: bool,
 ) -> Result<Option<Scene>, SynthError> {
     let mut r = ChaCha8Rng::seed_from_u64(stream);
     let mut objects = Vec::new();
@@ -130,25 +188,52 @@ fn pickup_attempt(
     let (lx, ly) = (r.random_range(-0.15..0.15), r.random_range(-0.1..0.1));
     let (tx, ty) = table.to_world(lx, ly);
     let top = table.size.z;
-    let category = PICKUP_TARGETS[r.random_range(0..PICKUP_TARGETS.len())];
-    let mut shape = shapes::tabletop(category, &mut r);
-    for _ in 0..50 {
-        if shape.footprint_radius <= MAX_TARGET_RADIUS_M {
-            break;
+    let (category, shape) = if v2 {
+        // The seed fixes the kind, so that every kind has its share of the scenes.
+        let category = PICKUP_V2_TARGETS[(seed % PICKUP_V2_TARGETS.len() as u64) as usize];
+        let Some(shape) = v2_target(category, &mut r) else {
+            return Ok(None);
+        };
+        (category, shape)
+    } else {
+        let category = PICKUP_TARGETS[r.random_range(0..PICKUP_TARGETS.len())];
+        let mut shape = shapes::tabletop(category, &mut r);
+        for _ in 0..50 {
+            if shape.footprint_radius <= MAX_TARGET_RADIUS_M {
+                break;
+            }
+            shape = shapes::tabletop(category, &mut r);
         }
-        shape = shapes::tabletop(category, &mut r);
-    }
-    if shape.footprint_radius > MAX_TARGET_RADIUS_M {
-        return Ok(None);
-    }
+        if shape.footprint_radius > MAX_TARGET_RADIUS_M {
+            return Ok(None);
+        }
+        (category, shape)
+    };
     let az = r.random_range(200f32..250.0).to_radians();
     let to_robot = Vector3::new(az.cos(), az.sin(), 0.0);
     let side = Vector3::new(-az.sin(), az.cos(), 0.0);
-    // The occluder: a large box between the robot and the target, facing the robot.
-    let (w, d) = (r.random_range(0.16..0.3f32), r.random_range(0.05..0.1f32));
-    let h = (shape.height * r.random_range(0.6..1.25f32)).clamp(0.08, 0.35);
+    // The occluder between the robot and the target: a large box facing the robot (pickup-v1's
+    // only kind), or in pickup-v2 also a tall carton or a wide jar.
+    let kind = if v2 { r.random_range(0..3u8) } else { 0 };
+    let (w, d) = match kind {
+        0 => (r.random_range(0.16..0.3f32), r.random_range(0.05..0.1f32)),
+        1 => {
+            let s = r.random_range(0.07..0.1f32);
+            (s, s)
+        }
+        _ => {
+            let s = 2.0 * r.random_range(0.05..0.08f32);
+            (s, s)
+        }
+    };
+    let h = match kind {
+        0 => (shape.height * r.random_range(0.6..1.25f32)).clamp(0.08, 0.35),
+        1 => r.random_range(0.18..0.26f32).max(shape.height * 0.8),
+        _ => (shape.height * r.random_range(0.7..1.2f32)).clamp(0.1, 0.3),
+    };
     let gap = r.random_range(0.02..0.08f32);
-    let lateral = r.random_range(-1.0..1.0f32) * (w / 2.0 + shape.footprint_radius);
+    let reach = if v2 { 0.6 } else { 1.0 };
+    let lateral = r.random_range(-reach..reach) * (w / 2.0 + shape.footprint_radius);
     let oc = Point3::new(tx, ty, top)
         + to_robot * (shape.footprint_radius + d / 2.0 + gap)
         + side * lateral;
@@ -165,16 +250,18 @@ fn pickup_attempt(
         app,
     );
     let app = appearance(&mut r);
+    let (occluder, mesh) = if kind == 2 {
+        (Category::Jar, crate::mesh::cylinder(w / 2.0, h, 0.0, 32))
+    } else {
+        (
+            Category::Box,
+            box_on(Vector3::new(w, d, h), (0.0, 0.0), 0.0),
+        )
+    };
     add_object(
         &mut objects,
-        Category::Box,
-        place(
-            box_on(Vector3::new(w, d, h), (0.0, 0.0), 0.0),
-            oc.x,
-            oc.y,
-            top,
-            az + std::f32::consts::FRAC_PI_2,
-        ),
+        occluder,
+        place(mesh, oc.x, oc.y, top, az + std::f32::consts::FRAC_PI_2),
         app,
     );
     let mut taken = vec![(lx, ly, shape.footprint_radius), (ox, oy, w / 2.0 + 0.01)];

@@ -613,3 +613,70 @@ fn sensor_noise_pairs_carry_a_noisy_condition_and_clean_targets() {
         "{roughness_noisy} against {roughness_plain}"
     );
 }
+
+/// pickup-v2: each seed's target is the kind its seed fixes, narrow enough for the gripper,
+/// 5-50% visible; a flask is flattened (not round), a faceted bottle has flat sides (its
+/// footprint's corners stand out of the inscribed circle).
+#[test]
+fn pickup_v2_scenes_have_their_kind_of_target_mostly_hidden() {
+    use deocc_synth::dataset::{pickup_v2, render_full_scene};
+    use deocc_synth::tasks::{MAX_V2_NARROW_SIDE_M, PICKUP_V2_TARGETS};
+    let preset = pickup_v2();
+    for &seed in &preset.seeds[..6] {
+        let r = render_full_scene(&preset.config, seed).unwrap();
+        let target = r.scene.target.expect("a target");
+        let object = r
+            .scene
+            .objects
+            .iter()
+            .find(|o| o.instance_id == target)
+            .unwrap();
+        assert_eq!(
+            object.category,
+            PICKUP_V2_TARGETS[(seed % 6) as usize],
+            "seed {seed}"
+        );
+        let v = r.views[0]
+            .visibility
+            .iter()
+            .find(|v| v.instance_id == target)
+            .expect("the target is in view");
+        let visible = 1.0 - v.occlusion();
+        assert!((0.05..=0.5).contains(&visible), "seed {seed}: {visible}");
+    }
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(4);
+    let footprint = |m: &deocc_synth::mesh::TriMesh| {
+        // Horizontal extents along x and y, and the largest distance from the axis.
+        let (lo, hi) = m.bounds().unwrap();
+        let reach = m
+            .vertices
+            .iter()
+            .map(|p| p.x.hypot(p.y))
+            .fold(0.0f32, f32::max);
+        (hi.x - lo.x, hi.y - lo.y, reach)
+    };
+    for _ in 0..5 {
+        let flask = deocc_synth::shapes::tabletop(deocc_synth::shapes::Category::Flask, &mut rng);
+        let (x, y, _) = footprint(&flask.mesh);
+        assert!(y < 0.65 * x, "a flask {x} x {y} is not flattened");
+        let faceted =
+            deocc_synth::shapes::tabletop(deocc_synth::shapes::Category::FacetedBottle, &mut rng);
+        let (x, y, reach) = footprint(&faceted.mesh);
+        // A hexagon or octagon: 6 or 8 corners on the base's outline.
+        let mut corners: Vec<i32> = faceted
+            .mesh
+            .vertices
+            .iter()
+            .filter(|p| p.z.abs() < 1e-4 && p.x.hypot(p.y) > 0.99 * reach)
+            .map(|p| (p.y.atan2(p.x).to_degrees() * 10.0).round() as i32)
+            .collect();
+        corners.sort_unstable();
+        corners.dedup();
+        assert!(
+            corners.len() == 6 || corners.len() == 8,
+            "{} corners",
+            corners.len()
+        );
+        assert!(x.min(y) <= MAX_V2_NARROW_SIDE_M + 0.01);
+    }
+}
