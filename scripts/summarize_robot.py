@@ -13,6 +13,16 @@ if r["benchmark"].startswith("pickup"):
               f"affordance IoU {ci(row['all']['affordance_iou'])}  vs observed {row['top1_at_04_vs_observed']['difference']:+.3f} "
               f"[{row['top1_at_04_vs_observed']['ci95'][0]:+.3f}, {row['top1_at_04_vs_observed']['ci95'][1]:+.3f}]  "
               f"heavy/GT {row['top1_at_04_over_ground_truth_heavy']:.2f}  {row['mean_seconds_per_scene']:.3f} s/scene (max {row['max_seconds_per_scene']:.3f})")
+    if "by_target" in r["rows"][0]:
+        kinds = list(r["rows"][0]["by_target"])
+        bins = [name for name, _ in r["rows"][0]["by_visibility"]]
+        print("top-1@0.4 by target kind and by visibility (scenes):")
+        print(f"{'':>15}" + "".join(f"{k:>16}" for k in kinds) + "".join(f"{b:>20}" for b in bins) + f"{'all/GT':>8}")
+        for row in r["rows"]:
+            cells = [f"{row['by_target'][k]['top1_at_04']['mean']:.2f} ({row['by_target'][k]['scenes']})" for k in kinds]
+            vis = ["-" if s["scenes"] == 0 else f"{s['top1_at_04']['mean']:.2f} ({s['scenes']})" for _, s in row["by_visibility"]]
+            print(f"{row['cloud']:>15}" + "".join(f"{c:>16}" for c in cells) + "".join(f"{v:>20}" for v in vis)
+                  + f"{row['top1_at_04_over_ground_truth']:>8.2f}")
 else:
     print(f"{r['benchmark']}: {r['scenes']} scenes, hidden share of the free table top {r['mean_hidden_free_fraction']:.2f}")
     print("whole table top:")

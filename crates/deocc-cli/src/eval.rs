@@ -23,9 +23,11 @@ pub enum EvalCommand {
     /// surface covered by its own points, a row per completer (none, rules, gldot, gldot,rules),
     /// and the share of generated points on a true surface.
     Objects(ObjectsArgs),
-    /// Grasping on pickup-v1: antipodal grasps planned on the observed cloud, each completer's
-    /// cloud and the ground truth, scored analytically on the ground truth (top-1 success at
-    /// mu 0.4 / 0.8, AP, affordance IoU), light and heavy occlusion, bootstrap intervals.
+    /// Grasping on pickup-v1 or pickup-v2 (`--preset`): antipodal grasps planned on the
+    /// observed cloud, each completer's cloud and the ground truth, scored analytically on the
+    /// ground truth (top-1 success at mu 0.4 / 0.8, AP, affordance IoU), light and heavy
+    /// occlusion, by target kind and visibility, with the planner's reasons per scene; bootstrap
+    /// intervals.
     Grasp(crate::robot_eval::GraspArgs),
     /// Placing on place-v1: placement maps of an 8 x 8 x 12 cm object from the observed cloud
     /// (unseen space free, and occupied), each completer's cloud and the ground truth; IoU,

@@ -52,11 +52,13 @@ fn presence(scene: &deocc_pipeline::SceneInput, id: u32) -> MaskPresence {
         .collect()
 }
 
-/// A completed cloud, the frames' names and cameras, and the scene as the run used it.
+/// A completed cloud, the frames' names and cameras, the scene as the run used it, and the
+/// instances whose completion is a fitted surface ([`deocc_pipeline::RunReport::fitted_instances`]).
 type Completed = (
     PointCloud,
     Vec<(String, Camera)>,
     deocc_pipeline::SceneInput,
+    Vec<u32>,
 );
 
 /// The scene's completed cloud (or observed with `--observed`) with `options`, its frames'
@@ -94,6 +96,7 @@ fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<Completed> {
         .iter()
         .map(|f| (f.name.clone(), f.camera))
         .collect();
+    let fitted = out.report.fitted_instances();
     Ok((
         if a.observed {
             out.observed
@@ -102,6 +105,7 @@ fn completed(a: &SceneArgs, options: &PipelineOptions) -> Result<Completed> {
         },
         cameras,
         scene,
+        fitted,
     ))
 }
 
@@ -221,7 +225,7 @@ fn picked_target(
 
 pub fn grasp(a: GraspArgs) -> Result<()> {
     let options = grasp_options(a.options.as_deref())?;
-    let (cloud, cameras, scene) = completed(&a.scene, &PipelineOptions::default())?;
+    let (cloud, cameras, scene, fitted) = completed(&a.scene, &PipelineOptions::default())?;
     let camera = cameras[0].1;
     let (target_id, picked) = picked_target(&a, &cloud, &cameras)?;
     if let Some(how) = &picked {
@@ -287,7 +291,7 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
             cloud
                 .generated
                 .as_deref()
-                .map(|g| deocc_robot::grasp::stated_errors(g, &options))
+                .map(|g| deocc_robot::grasp::stated_errors(g, Some(&ids), &fitted, &options))
         })
         .flatten();
     let target_errors: Option<Vec<f32>> = errors.as_ref().map(|e| {
@@ -409,7 +413,7 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         (Some(Unseen::AsPoints), _) | (None, false) => UnseenSpace::AsPoints,
     };
     // Thin far sides: what a placement map needs (PipelineOptions::for_placing).
-    let (cloud, cameras, _) = completed(&a.scene, &PipelineOptions::default().for_placing())?;
+    let (cloud, cameras, _, _) = completed(&a.scene, &PipelineOptions::default().for_placing())?;
     let (camera, frames) = (cameras[0].1, cameras.len());
     let robot = nalgebra::Point3::from(camera.world_from_camera.translation.vector);
     let placer = GridPlacer {

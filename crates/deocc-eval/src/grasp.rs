@@ -313,12 +313,13 @@ pub fn grasp_benchmark(
                 EvalError::Data("the pipeline's cloud has no instance ids".into())
             })?;
             // The planner's envelope: the stated error of each generated point.
+            let fitted = out.report.fitted_instances();
             let errors = (options.generated_error_m > 0.0)
                 .then(|| {
                     cloud
                         .generated
                         .as_deref()
-                        .map(|g| deocc_robot::grasp::stated_errors(g, options))
+                        .map(|g| deocc_robot::grasp::stated_errors(g, Some(&ids), &fitted, options))
                 })
                 .flatten();
             let (mut row, _) = score_cloud(

@@ -159,6 +159,21 @@ pub struct RunReport {
     pub mask_rims: Vec<crate::mask_rims::MaskRimRecord>,
 }
 
+impl RunReport {
+    /// Instances whose completion the revolve or cuboid stage replaced by a surface fitted to
+    /// their observed side.
+    pub fn fitted_instances(&self) -> Vec<u32> {
+        self.instances
+            .iter()
+            .filter(|i| {
+                i.revolve.as_ref().is_some_and(|r| r.fit.is_some())
+                    || i.cuboid.as_ref().is_some_and(|c| c.fit.is_some())
+            })
+            .map(|i| u32::from(i.instance_id))
+            .collect()
+    }
+}
+
 /// The process's peak resident set size so far (Linux: `VmHWM` of /proc/self/status), MiB.
 pub fn peak_rss_mib() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;

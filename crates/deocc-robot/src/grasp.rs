@@ -285,13 +285,22 @@ pub struct AntipodalPlanner {
 }
 
 /// Each point's expected error for the planner from its provenance code
-/// (`deocc_geometry::Provenance`): 0 for an observed point (code 0), `generated_error_m` for any
-/// generated one. The stated estimate for clouds whose completer gave no error of its own.
-pub fn stated_errors(provenance: &[u8], options: &GraspOptions) -> Vec<f32> {
+/// (`deocc_geometry::Provenance`) and instance: 0 for an observed point (code 0) and for the
+/// points of an instance in `fitted` (a surface of revolution or a box fitted to its observed
+/// side, as exact as the observation), `generated_error_m` for any other generated one. The
+/// stated estimate for clouds whose completer gave no error of its own.
+pub fn stated_errors(
+    provenance: &[u8],
+    instance: Option<&[u32]>,
+    fitted: &[u32],
+    options: &GraspOptions,
+) -> Vec<f32> {
     provenance
         .iter()
-        .map(|&p| {
-            if p == 0 {
+        .enumerate()
+        .map(|(k, &p)| {
+            let exact = instance.is_some_and(|ids| fitted.contains(&ids[k]));
+            if p == 0 || exact {
                 0.0
             } else {
                 options.generated_error_m
