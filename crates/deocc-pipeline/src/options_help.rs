@@ -117,7 +117,7 @@ pub const OPTIONS: &[OptionHelp] = &[
     row!("depth_clean.agree_sigmas", f(0.5, 50.0), "a pixel is an outlier unless it continues a neighbour's surface within this many sigmas"),
     row!("depth_clean.connect_sigmas", f(0.5, 50.0), "neighbours within this many sigmas belong to one surface (speck regions)"),
     row!("depth_clean.min_region_px", i(0, 10_000), "surface regions smaller than this are specks and removed, pixels"),
-    row!("depth_clean.smooth_sigmas", f(0.5, 50.0), "smoothing averages neighbours within this many sigmas (never across an edge)"),
+    row!("depth_clean.smooth_sigmas", f(0.5, 50.0), "smoothing fits a plane to the window's pixels within this many sigmas (never across an edge)"),
     row!("depth_clean.radius", i(0, 8), "smoothing window radius, pixels"),
     row!("mask_rims.enabled", Range::Bool, "given instance masks lose the rims whose depth belongs to something else"),
     row!("mask_rims.connect_sigmas", f(0.5, 50.0), "neighbours within this many sigmas (plus 2% of depth) are one surface"),

@@ -93,14 +93,22 @@ fn pipeline_status(e: PipelineError) -> Status {
     }
 }
 
-/// The deadline of a request: its `grpc-timeout` header, capped by `max`.
+/// How much earlier than a client's `grpc-timeout` the service gives up, at most (a quarter of
+/// the timeout below 400 ms). tonic's own timeout layer starts its clock when the request's
+/// headers arrive, before the body has streamed in and been decoded (tens of milliseconds for a
+/// large cloud on a busy machine), and answers CANCELLED ("Timeout expired"); the service
+/// answers DEADLINE_EXCEEDED, as the gRPC spec says, only if its clock runs out first.
+pub const DEADLINE_LEAD: Duration = Duration::from_millis(100);
+
+/// The deadline of a request: its `grpc-timeout` header less its lead ([`DEADLINE_LEAD`]),
+/// capped by `max`.
 pub fn deadline<T>(req: &Request<T>, max: Duration) -> Instant {
     let timeout = req
         .metadata()
         .get("grpc-timeout")
         .and_then(|v| v.to_str().ok())
         .and_then(parse_grpc_timeout)
-        .map_or(max, |t| t.min(max));
+        .map_or(max, |t| t.saturating_sub(DEADLINE_LEAD.min(t / 4)).min(max));
     Instant::now() + timeout
 }
 
