@@ -41,6 +41,19 @@ pub fn prepare(
     segmenter: &dyn Segmenter,
     segment: bool,
 ) -> Result<Prepared, PipelineError> {
+    prepare_observed(scene, opts, depth, segmenter, segment, &crate::Unobserved)
+}
+
+/// [`prepare`], telling `observer` of the depth front end before each frame (so that Ctrl-C,
+/// a client gone or a deadline stops a long front half too, not only the run after it).
+pub fn prepare_observed(
+    scene: &mut SceneInput,
+    opts: &PipelineOptions,
+    depth: Option<&dyn DepthSource>,
+    segmenter: &dyn Segmenter,
+    segment: bool,
+    observer: &dyn crate::Observer,
+) -> Result<Prepared, PipelineError> {
     opts.validate()?;
     let depth_fill = match depth {
         Some(source) => {
@@ -48,11 +61,11 @@ pub fn prepare(
         }
         None => Vec::new(),
     };
-    let depth_clean = scene
-        .frames
-        .iter_mut()
-        .map(|f| clean_depth(&mut f.depth, &opts.depth_clean))
-        .collect();
+    let mut depth_clean = Vec::with_capacity(scene.frames.len());
+    for f in &mut scene.frames {
+        crate::enter(observer, "depth_clean")?;
+        depth_clean.push(clean_depth(&mut f.depth, &opts.depth_clean));
+    }
     if segment {
         for f in &mut scene.frames {
             f.instances = None;

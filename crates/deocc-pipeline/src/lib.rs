@@ -86,7 +86,7 @@ impl Observer for Unobserved {
     }
 }
 
-fn enter(observer: &dyn Observer, stage: &'static str) -> Result<(), PipelineError> {
+pub(crate) fn enter(observer: &dyn Observer, stage: &'static str) -> Result<(), PipelineError> {
     if observer.stage(stage, stages::progress(stage)) {
         Ok(())
     } else {
@@ -116,7 +116,7 @@ pub fn run_in_memory(
     segment: bool,
     observer: &dyn Observer,
 ) -> Result<PipelineOutput, PipelineError> {
-    let prepared = front::prepare(&mut scene, opts, None, segmenter, segment)?;
+    let prepared = front::prepare_observed(&mut scene, opts, None, segmenter, segment, observer)?;
     run_prepared(&scene, chain, opts, prepared, observer)
 }
 

@@ -80,9 +80,9 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "front",
-        what: "the front half in one function for every caller: learned depth fill, depth front end, mask rims, registration, instances",
+        what: "the front half in one function for every caller: learned depth fill, depth front end, mask rims, registration, instances (`prepare_observed`: the observer may stop it before each frame's depth front end)",
         files: &["deocc-pipeline/src/front.rs", "deocc-pipeline/src/lib.rs"],
-        functions: &["prepare", "run_prepared"],
+        functions: &["prepare", "prepare_observed", "run_prepared"],
         progress: None,
     },
     Stage {

@@ -1399,3 +1399,41 @@ fn a_patch_for_a_link_the_chain_lacks_is_refused() {
         .unwrap();
     }
 }
+
+/// The front half asks the observer before each frame's depth front end: one that says stop
+/// there ends `run_in_memory` with `Cancelled` at `depth_clean`, before any run stage; one that
+/// lets it go sees `depth_clean` once per frame, then the run's stages.
+#[test]
+fn an_observer_can_stop_the_front_half() {
+    use std::sync::Mutex;
+    struct Record(Mutex<Vec<&'static str>>, Option<&'static str>);
+    impl deocc_pipeline::Observer for Record {
+        fn stage(&self, stage: &'static str, _: f32) -> bool {
+            self.0.lock().unwrap().push(stage);
+            Some(stage) != self.1
+        }
+    }
+    let rendered = small_scene();
+    let scene = rendered.scene_input();
+    let frames = scene.frames.len();
+    let chain = CompleterChain::single(RulesCompleter::default());
+    let opts = PipelineOptions::default();
+    let segmenter = deocc_pipeline::segment::ConvexitySegmenter::default();
+    let stop = Record(Mutex::new(Vec::new()), Some("depth_clean"));
+    let e = deocc_pipeline::run_in_memory(scene.clone(), &chain, &opts, &segmenter, false, &stop)
+        .err()
+        .unwrap();
+    assert!(matches!(
+        e,
+        deocc_pipeline::PipelineError::Cancelled {
+            stage: "depth_clean"
+        }
+    ));
+    assert_eq!(stop.0.into_inner().unwrap(), vec!["depth_clean"]);
+    let all = Record(Mutex::new(Vec::new()), None);
+    deocc_pipeline::run_in_memory(scene, &chain, &opts, &segmenter, false, &all).unwrap();
+    let seen = all.0.into_inner().unwrap();
+    assert_eq!(seen.iter().filter(|s| **s == "depth_clean").count(), frames);
+    assert!(seen[..frames].iter().all(|s| *s == "depth_clean"));
+    assert!(seen.len() > frames);
+}
