@@ -212,8 +212,12 @@ class Deocc(unittest.TestCase):
     def test_ctrl_c_stops_a_run(self):
         # A run goes on without the GIL; Ctrl-C used to be ignored until it ended.
         scene, _ = cli_example()
+        # A shell's background job starts with SIGINT ignored, and Python then installs no
+        # KeyboardInterrupt handler: put the default one back, so the test does not depend on
+        # how it was launched.
         code = (
-            "import deocc, sys, time\n"
+            "import deocc, signal, sys, time\n"
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
             f"frames, _ = deocc.read_scene({scene!r})\n"
             "print('ready', flush=True)\n"
             "t = time.time()\n"
