@@ -587,22 +587,16 @@ impl AntipodalPlanner {
         let (mut yh, mut yl) = (open.to_local(&pts[hi]).y, open.to_local(&pts[lo]).y);
         // The envelope: each point a ball of its expected error, trimmed alike.
         if terr.iter().any(|&e| e > 0.0) {
-            let grown: Vec<(usize, Vector3<f32>)> = inside
-                .iter()
-                .map(|&(i, l)| (i, l + Vector3::y() * terr[i]))
-                .collect();
-            let shrunk: Vec<(usize, Vector3<f32>)> = inside
-                .iter()
-                .map(|&(i, l)| (i, l - Vector3::y() * terr[i]))
-                .collect();
             let k = (o.extent_trim * inside.len() as f32).floor() as usize;
-            let at = |v: &[(usize, Vector3<f32>)], rank: usize| {
-                let mut ys: Vec<f32> = v.iter().map(|(_, l)| l.y).collect();
-                let rank = rank.min(ys.len() - 1);
-                *ys.select_nth_unstable_by(rank, |a, b| a.total_cmp(b)).1
+            let rank = |mut ys: Vec<f32>, at: usize| {
+                let at = at.min(ys.len() - 1);
+                *ys.select_nth_unstable_by(at, |a, b| a.total_cmp(b)).1
             };
-            yh = yh.max(at(&grown, grown.len().saturating_sub(1 + k)));
-            yl = yl.min(at(&shrunk, k));
+            let n = inside.len();
+            let grown = inside.iter().map(|&(i, l)| l.y + terr[i]).collect();
+            let shrunk = inside.iter().map(|&(i, l)| l.y - terr[i]).collect();
+            yh = yh.max(rank(grown, n.saturating_sub(1 + k)));
+            yl = yl.min(rank(shrunk, k));
         }
         // A sheet thinner than two voxels is no grasp (a pinch of a face's edge).
         if yh - yl + 2.0 * o.margin_m > g.max_aperture || yh - yl < 2.0 * o.voxel_m {

@@ -296,22 +296,7 @@ pub fn tabletop(category: Category, r: &mut impl Rng) -> Shape {
             let (rad, h) = (u(r, 0.03, 0.05), u(r, 0.2, 0.32));
             let neck = rad * u(r, 0.3, 0.45);
             let body = h * u(r, 0.55, 0.7);
-            let m = lathe(
-                &[
-                    (rad, 0.0),
-                    (rad, body),
-                    (neck, body + (h - body) * 0.5),
-                    (neck, h),
-                ],
-                SEG,
-                true,
-                true,
-            );
-            Shape {
-                footprint_radius: rad,
-                height: h,
-                mesh: m,
-            }
+            bottle(rad, h, neck, body, SEG)
         }
         Category::Mug => mug(r, 0.035, 0.05),
         Category::FacetedBottle => {
@@ -319,22 +304,7 @@ pub fn tabletop(category: Category, r: &mut impl Rng) -> Shape {
             let sides = if r.random_bool(0.5) { 6 } else { 8 };
             let neck = rad * u(r, 0.35, 0.45);
             let body = h * u(r, 0.55, 0.7);
-            let m = lathe(
-                &[
-                    (rad, 0.0),
-                    (rad, body),
-                    (neck, body + (h - body) * 0.5),
-                    (neck, h),
-                ],
-                sides,
-                true,
-                true,
-            );
-            Shape {
-                footprint_radius: rad,
-                height: h,
-                mesh: m,
-            }
+            bottle(rad, h, neck, body, sides)
         }
         Category::Flask => {
             let (rad, h) = (u(r, 0.045, 0.06), u(r, 0.16, 0.24));
@@ -360,6 +330,27 @@ pub fn tabletop(category: Category, r: &mut impl Rng) -> Shape {
             }
         }
         _ => tabletop_other(category, r),
+    }
+}
+
+/// A shouldered bottle of body radius `rad` and height `h`: the body up to `body`, a shoulder
+/// halfway up the rest, a neck of radius `neck`; `segments` sides around (6 or 8: faceted).
+fn bottle(rad: f32, h: f32, neck: f32, body: f32, segments: usize) -> Shape {
+    let mesh = lathe(
+        &[
+            (rad, 0.0),
+            (rad, body),
+            (neck, body + (h - body) * 0.5),
+            (neck, h),
+        ],
+        segments,
+        true,
+        true,
+    );
+    Shape {
+        footprint_radius: rad,
+        height: h,
+        mesh,
     }
 }
 
