@@ -40,6 +40,11 @@ pub struct SceneOptions {
 }
 
 impl SceneOptions {
+    /// The sensor `--sensor` (or `--sensor-noise`) names.
+    pub fn sensor_kind(&self) -> Result<deocc_synth::sensor::SensorKind> {
+        self.sensor.kind()
+    }
+
     pub fn config(&self) -> Result<SceneConfig> {
         let user_meshes = self
             .meshes

@@ -41,7 +41,9 @@ pub struct ScenesArgs {
     count: usize,
     #[arg(long, default_value_t = 0, conflicts_with = "preset")]
     seed: u64,
-    /// A named preset instead of --count/--seed and the scene options: bench-v1, bench-v1-small, chairs-v1, pickup-v1, place-v1, place-v2.
+    /// A named preset instead of --count/--seed and the scene options (all but --sensor, which
+    /// measures the preset's scenes as it does in `deocc eval --sensor`): bench-v1,
+    /// bench-v1-small, chairs-v1, pickup-v1, pickup-v2, place-v1, place-v2.
     #[arg(long)]
     preset: Option<String>,
     /// With --preset: only its first N scenes.
@@ -121,6 +123,7 @@ fn scenes(a: ScenesArgs) -> Result<()> {
             if let Some(n) = a.first {
                 p.seeds.truncate(n);
             }
+            deocc_eval::with_sensor(&mut p, a.options.sensor_kind()?);
             p
         }
         None => Preset {

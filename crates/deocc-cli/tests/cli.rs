@@ -104,6 +104,33 @@ fn bad_inputs_fail_with_the_file_named() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("PATH=SIZE_M"));
 }
 
+/// `--sensor` measures a preset's scenes too (it was once ignored beside `--preset`): the
+/// structured-light sensor leaves pixels without depth that the clean render has.
+#[test]
+fn a_preset_is_measured_by_the_sensor_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let holes = |sensor: &str| {
+        let out = dir.path().join(sensor);
+        let o = deocc()
+            .args([
+                "synth", "scenes", "--preset", "place-v1", "--first", "1", "--sensor", sensor,
+                "--out",
+            ])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let d =
+            deocc_io::images::read_depth_png(&out.join("scene_000000/depth/000000.png")).unwrap();
+        d.data().iter().filter(|&&z| z <= 0.0).count() as f64 / d.data().len() as f64
+    };
+    let (clean, sensor) = (holes("clean"), holes("structured-light"));
+    assert!(
+        sensor > clean + 0.05,
+        "pixels without depth: {clean:.3} clean, {sensor:.3} with the sensor"
+    );
+}
+
 /// The shipped model, relative to the workspace.
 fn shipped_weights() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../weights/gldot-small")

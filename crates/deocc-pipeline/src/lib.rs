@@ -287,6 +287,13 @@ fn occlusion_and_targets(scene: &SceneInput, opts: &PipelineOptions) -> Targets 
         .collect();
     let popts = planes::PlaneOptions {
         min_rectangularity: opts.plane_min_rectangularity,
+        fill_unmeasured: opts.plane_fill_unmeasured,
+        mask_window_px: if opts.plane_fill_unmeasured {
+            planes::PlaneOptions::default().mask_window_px
+        } else {
+            0
+        },
+        up: opts.up,
         ..planes::PlaneOptions::default()
     };
     let found = (opts.skip_plane_pieces || opts.complete_planes)

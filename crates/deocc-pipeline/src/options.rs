@@ -69,6 +69,12 @@ pub struct PipelineOptions {
     /// rectangles; a table's corner hidden behind things at its edge is filled), in [0, 2]
     /// (above 1: hulls only). What the views see through is not filled either way.
     pub plane_min_rectangularity: f32,
+    /// The plane fill also fills what no view measures, not only what the views see something in
+    /// front of: cells inside the plane's observed hull, and the pixels of a level plane's
+    /// instance mask that have no depth, where their sight line meets the plane (a sensor's
+    /// drop-outs on a table seen at a grazing angle, a projector's shadow on it;
+    /// [`crate::planes::PlaneOptions::mask_window_px`]).
+    pub plane_fill_unmeasured: bool,
     /// Keep a generated point only if every view agrees it is hidden ([`crate::carve`]).
     pub carve_generated: bool,
     /// Drop generated points more than this far (metres; 0 = off) behind one of the scene's
@@ -155,6 +161,7 @@ impl Default for PipelineOptions {
             up: [0.0, 0.0, 1.0],
             complete_planes: true,
             plane_min_rectangularity: 0.8,
+            plane_fill_unmeasured: true,
             carve_generated: true,
             carve_outside_bounding_planes_m: CARVE_OUTSIDE_BOUNDING_PLANES_M,
             max_scene_radius_m: 50.0,

@@ -48,6 +48,18 @@ pub struct PlaneOptions {
     /// A plane whose fill grid would exceed this many cells is not filled (memory and time
     /// stay bounded whatever the poses say): 25M cells is 50 x 50 m at 1 cm.
     pub max_cells: u64,
+    /// Cells inside the observed part's hull that no view measures (drop-outs, shadows) are
+    /// filled as hidden ones are ([`crate::PipelineOptions::plane_fill_unmeasured`]).
+    pub fill_unmeasured: bool,
+    /// Pixels of a plane's instance that have no depth (a sensor's drop-outs, a projector's
+    /// shadow) are filled where their sight line meets the plane, when most of the instance's
+    /// measured pixels around them (within this many pixels) lie on it; 0 = off. The mask says
+    /// the surface is there; the plane says where.
+    pub mask_window_px: usize,
+    /// Only planes within 30 degrees of level (this is up) get their masked pixels without depth:
+    /// support surfaces, where a planner needs them; a far wall's plane is fitted to depth too
+    /// noisy to put pixels on it (3 cm off at 3.5 m under a structured-light sensor).
+    pub up: [f32; 3],
 }
 
 impl Default for PlaneOptions {
@@ -62,6 +74,9 @@ impl Default for PlaneOptions {
             min_extent_m: 0.8,
             stride: 3,
             max_cells: 25_000_000,
+            fill_unmeasured: true,
+            mask_window_px: 8,
+            up: [0.0, 0.0, 1.0],
         }
     }
 }
@@ -598,6 +613,178 @@ fn solid_part(
         .collect()
 }
 
+/// Grid cells of a plane's fill.
+type Cells = HashSet<(i32, i32)>;
+
+/// Each member's points in the plane's frame (`flat`): its measured inliers and its masked
+/// pixels without depth. A member's own hull decides whether it is a surface, the joint hull of
+/// the members that are is what gets filled (a floor that a segmenter cut into pieces is filled
+/// between them). With them, the cells the measured inliers and their neighbours hold.
+fn member_flats(
+    members: &[&Plane],
+    masked: &[Vec<Point3<f32>>],
+    normal: Vector3<f32>,
+    offset: f32,
+    flat: &dyn Fn(&Point3<f32>) -> Point2<f32>,
+    cell: &dyn Fn(&Point3<f32>) -> (i32, i32),
+    opts: &PlaneOptions,
+) -> (Vec<Vec<Point2<f32>>>, Cells) {
+    let mut occupied: HashSet<(i32, i32)> = HashSet::new();
+    let mut flats: Vec<Vec<Point2<f32>>> = Vec::new();
+    for (m, masked) in members.iter().zip(masked) {
+        let mut points: Vec<Point2<f32>> = masked.iter().map(flat).collect();
+        for p in &m.points {
+            if (normal.dot(&p.coords) - offset).abs() > opts.inlier_m {
+                continue;
+            }
+            let (a, b) = cell(p);
+            // Observed cells and their neighbours (the sampling stride leaves gaps).
+            for da in -2..=2 {
+                for db in -2..=2 {
+                    occupied.insert((a + da, b + db));
+                }
+            }
+            points.push(flat(p));
+        }
+        flats.push(points);
+    }
+    (flats, occupied)
+}
+
+/// Each of `members`' pixels without depth, where the plane `normal . p = offset` says they are
+/// ([`mask_points`]), when the plane is within [`MASK_MAX_TILT_DEG`] of level: they tell the
+/// plane's extent as its measured points do (a table top whose far half the sensor drops at a
+/// grazing angle), and are filled when the member is a surface ([`add_masked_points`]).
+fn members_masked_points(
+    scene: &SceneInput,
+    members: &[&Plane],
+    normal: Vector3<f32>,
+    offset: f32,
+    opts: &PlaneOptions,
+) -> Vec<Vec<Point3<f32>>> {
+    let up = Vector3::from(opts.up).normalize();
+    let level = normal.dot(&up).abs() >= MASK_MAX_TILT_DEG.to_radians().cos();
+    members
+        .iter()
+        .take(64)
+        .map(|m| {
+            if opts.mask_window_px > 0 && level {
+                mask_points(scene, &[m.instance_id], normal, offset, opts)
+            } else {
+                Vec::new()
+            }
+        })
+        .collect()
+}
+
+/// Adds to `fill` the masked points of the members that are surfaces (what the views see
+/// through of their hull stays within `max_seen_through`), one a cell, in the cells no measured
+/// point and no filled point holds.
+fn add_masked_points(
+    fill: &mut Vec<Point3<f32>>,
+    masked: Vec<Vec<Point3<f32>>>,
+    occupied: &HashSet<(i32, i32)>,
+    unobserved: &[usize],
+    seen_through: &[usize],
+    cell: &dyn Fn(&Point3<f32>) -> (i32, i32),
+    opts: &PlaneOptions,
+) {
+    let mut taken: HashSet<(i32, i32)> = fill.iter().map(cell).collect();
+    for (k, masked) in masked.into_iter().enumerate() {
+        if seen_through[k] as f32 > opts.max_seen_through * unobserved[k] as f32 {
+            continue;
+        }
+        for p in masked {
+            let c = cell(&p);
+            if !occupied.contains(&c) && taken.insert(c) {
+                fill.push(p);
+            }
+        }
+    }
+}
+
+/// The pixels of instances `ids` without depth whose sight line meets the plane
+/// `normal . p = offset` in front of the camera, where most of the instances' measured pixels
+/// within `opts.mask_window_px` lie on the plane (within `opts.inlier_m` or
+/// [`MASK_NOISE_SIGMAS`] of the frame's noise) (so a table leg's
+/// drop-out is not put on its top): the points where they meet it.
+fn mask_points(
+    scene: &SceneInput,
+    ids: &[u16],
+    normal: Vector3<f32>,
+    offset: f32,
+    opts: &PlaneOptions,
+) -> Vec<Point3<f32>> {
+    let r = opts.mask_window_px as isize;
+    let mut out = Vec::new();
+    for f in &scene.frames {
+        let Some(map) = &f.instances else { continue };
+        let (w, h) = (map.width as usize, map.height as usize);
+        let depth = f.depth.data();
+        let centre = f.camera.center();
+        let noise = deocc_geometry::noise::DepthNoise::estimate(&f.depth);
+        for v in 0..h {
+            for u in 0..w {
+                let i = v * w + u;
+                if depth[i] > 0.0 || !ids.contains(&map.ids[i]) {
+                    continue;
+                }
+                // The window, then one three times as wide (every third pixel) where the first
+                // holds too few measured pixels of the instance to judge.
+                let (mut on, mut off) = (0u32, 0u32);
+                for (r, step) in [(r, 1usize), (3 * r, 3)] {
+                    (on, off) = (0, 0);
+                    for y in ((v as isize - r).max(0)..=(v as isize + r).min(h as isize - 1))
+                        .step_by(step)
+                    {
+                        for x in ((u as isize - r).max(0)..=(u as isize + r).min(w as isize - 1))
+                            .step_by(step)
+                        {
+                            let j = y as usize * w + x as usize;
+                            if depth[j] <= 0.0 || !ids.contains(&map.ids[j]) {
+                                continue;
+                            }
+                            let q = f.camera.unproject_pixel(x as u32, y as u32, depth[j]);
+                            let tol = opts.inlier_m.max(MASK_NOISE_SIGMAS * noise.sigma(depth[j]));
+                            if (normal.dot(&q.coords) - offset).abs() <= tol {
+                                on += 1;
+                            } else {
+                                off += 1;
+                            }
+                        }
+                    }
+                    if on + off >= 3 {
+                        break;
+                    }
+                }
+                if on == 0 || 4 * off > on {
+                    continue;
+                }
+                let ray = f.camera.unproject_pixel(u as u32, v as u32, 1.0) - centre;
+                let denom = normal.dot(&ray);
+                if denom.abs() < 1e-6 {
+                    continue;
+                }
+                let t = (offset - normal.dot(&centre.coords)) / denom;
+                if t > 0.0 && t < MAX_MASK_DEPTH_M {
+                    out.push(centre + ray * t);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// A measured pixel near one without depth is on the plane within `inlier_m` or this many of
+/// the frame's depth noise sigmas at its depth, whichever is more.
+const MASK_NOISE_SIGMAS: f32 = 3.0;
+
+/// The most a plane may tilt from level for its masked pixels without depth to be filled.
+const MASK_MAX_TILT_DEG: f32 = 30.0;
+
+/// The farthest a pixel without depth is put on its plane (metres along the optical axis).
+const MAX_MASK_DEPTH_M: f32 = 10.0;
+
 /// Bounding planes among the groups: every camera on one side (a wall, the floor), as the
 /// group, a normal pointing to the cameras and its offset. A rectangle's corner that a hull did
 /// not reach must not lie behind one that stands across its own plane (a floor's corner through
@@ -654,29 +841,12 @@ pub fn complete_found_planes(
                 (d.dot(&e2) / s).floor() as i32,
             )
         };
-        let mut occupied: HashSet<(i32, i32)> = HashSet::new();
-        // Each member's points in the plane's frame: its own hull decides whether it is a
-        // surface (below), the joint hull of the members that are is what gets filled (a floor
-        // that a segmenter cut into pieces is filled between them).
-        let mut flats: Vec<Vec<Point2<f32>>> = Vec::new();
-        for m in members.iter().take(64) {
-            let mut flat: Vec<Point2<f32>> = Vec::new();
-            for p in &m.points {
-                if (normal.dot(&p.coords) - offset).abs() > opts.inlier_m {
-                    continue;
-                }
-                let (a, b) = cell(p);
-                // Observed cells and their neighbours (the sampling stride leaves gaps).
-                for da in -2..=2 {
-                    for db in -2..=2 {
-                        occupied.insert((a + da, b + db));
-                    }
-                }
-                let d = p - origin;
-                flat.push(Point2::new(d.dot(&e1), d.dot(&e2)));
-            }
-            flats.push(flat);
-        }
+        let masked = members_masked_points(scene, &members, normal, offset, opts);
+        let flat = |p: &Point3<f32>| {
+            let d = p - origin;
+            Point2::new(d.dot(&e1), d.dot(&e2))
+        };
+        let (flats, occupied) = member_flats(&members, &masked, normal, offset, &flat, &cell, opts);
         let hulls: Vec<Vec<Point2<f32>>> = flats.iter().map(|f| convex_hull(f.clone())).collect();
         let joint_hull = convex_hull(flats.concat());
         let joint = fill_region(joint_hull.clone(), opts.min_rectangularity);
@@ -738,12 +908,25 @@ pub fn complete_found_planes(
                         seen_through[k] += (e == Evidence::SeenThrough) as usize;
                     }
                 }
-                if e == Evidence::Hidden {
+                // A cell no view measures inside the observed hull: the sensor's drop-outs on
+                // a surface seen at a grazing angle, or its projector's shadow on it.
+                let dropped =
+                    opts.fill_unmeasured && e == Evidence::Unmeasured && inside(&joint_hull, &q);
+                if e == Evidence::Hidden || dropped {
                     hidden.push((p, q));
                 }
             }
         }
-        let fill = solid_part(hidden, &flats, &unobserved, &seen_through, opts);
+        let mut fill = solid_part(hidden, &flats, &unobserved, &seen_through, opts);
+        add_masked_points(
+            &mut fill,
+            masked,
+            &occupied,
+            &unobserved,
+            &seen_through,
+            &cell,
+            opts,
+        );
         tracing::debug!(
             "plane of instance {} ({:?}): {} filled; members' unobserved cells {:?}, seen through {:?}",
             first.instance_id,

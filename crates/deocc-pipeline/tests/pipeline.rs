@@ -186,6 +186,61 @@ fn plane_fill_lands_on_hidden_ground_truth() {
     );
 }
 
+/// Under a structured-light sensor a table or floor seen at a grazing angle loses much of its
+/// depth; its instance mask still covers those pixels. The plane fill puts them where their sight
+/// line meets the plane: more points than without them, and they lie on true surfaces.
+#[test]
+fn the_plane_fill_puts_masked_pixels_without_depth_on_their_plane() {
+    use deocc_pipeline::planes::{complete_planes, PlaneOptions};
+    let cfg = SceneConfig {
+        gt_points_per_m2: 10_000.0,
+        views: 1,
+        sensor: deocc_synth::sensor::SensorKind::StructuredLight,
+        ..config()
+    };
+    let rendered = render_full_scene(&cfg, 5).unwrap();
+    let scene = rendered.scene_input();
+    let depthless = scene.frames[0]
+        .depth
+        .data()
+        .iter()
+        .zip(&scene.frames[0].instances.as_ref().unwrap().ids)
+        .filter(|(&d, &id)| d <= 0.0 && id != 0)
+        .count();
+    assert!(
+        depthless > 1000,
+        "only {depthless} masked pixels without depth"
+    );
+    let with = complete_planes(&scene, &PlaneOptions::default());
+    let without = complete_planes(
+        &scene,
+        &PlaneOptions {
+            mask_window_px: 0,
+            fill_unmeasured: false,
+            ..PlaneOptions::default()
+        },
+    );
+    assert!(
+        with.len() > without.len() + 300,
+        "{} points with the masked pixels, {} without",
+        with.len(),
+        without.len()
+    );
+    let index = deocc_geometry::KdIndex::build(&rendered.ground_truth.cloud.positions).unwrap();
+    let on_surface = |c: &deocc_geometry::PointCloud| {
+        c.positions
+            .iter()
+            .filter(|p| index.nearest(p).distance_sq < 0.015 * 0.015)
+            .count() as f64
+            / c.len() as f64
+    };
+    let (a, b) = (on_surface(&with), on_surface(&without));
+    assert!(
+        a > 0.95,
+        "{a:.3} of the filled points lie on a surface ({b:.3} without the masked pixels)"
+    );
+}
+
 /// A completer with no weights: every crop candidate pixel joins the object at the object's median
 /// visible depth, in one colour, with probability [`STUB_PROBABILITY`]; it declines crops wider
 /// than `max_width_m`. Its far side lies 0.3 crop widths behind the near side, plus `lopsided`

@@ -521,6 +521,7 @@ pub fn preset(name: &str) -> Result<Preset> {
         "bench-v1" => Ok(bench_v1()),
         "chairs-v1" => Ok(chairs_v1()),
         "pickup-v1" => Ok(pickup_v1()),
+        "pickup-v2" => Ok(pickup_v2()),
         "place-v1" => Ok(place_v1()),
         "place-v2" => Ok(place_v2()),
         "bench-v1-small" => {
@@ -534,7 +535,7 @@ pub fn preset(name: &str) -> Result<Preset> {
             Ok(p)
         }
         other => Err(SynthError::Config(format!(
-            "unknown preset '{other}' (known: bench-v1, bench-v1-small, chairs-v1, pickup-v1, place-v1, place-v2)"
+            "unknown preset '{other}' (known: bench-v1, bench-v1-small, chairs-v1, pickup-v1, pickup-v2, place-v1, place-v2)"
         ))),
     }
 }
