@@ -1,5 +1,11 @@
-//! Why the place maps of place-v1 lose their support under a sensor model: how far the completed
-//! cloud's table points lie from the true table height, and how many plane-fill points there are.
+//! Why the place maps of place-v1 go wrong under a sensor model, scene by scene: the table's
+//! pixels by range (in the mask, with raw depth, after the front half) and their heights over
+//! the true top; what the view shows at each table cell the completed cloud leaves without
+//! support; each object's mask pixels with depth; the false-placeable cells by the true object in
+//! the way, with that object's completion record; the plane fill by range and the points at the
+//! table's height outside its top. `ASCII=1` draws the table top (`#` plane fill, `o` observed,
+//! `r` generated within 1 cm of the top; `x`/`y` observed/generated 1-3 cm off; `^` above, `_`
+//! below).
 //!
 //! `cargo run --release -p deocc-eval --example place_support -- [SENSOR] [SCENES]`
 
@@ -297,6 +303,137 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .collect();
             println!("  observed per instance (n, z over the table lo..hi): {per:?}");
             println!("  truth: {truth:?}");
+        }
+        {
+            // The false-placeable cells of the completed map: which true object each one's
+            // footprint meets, and what the completed and observed clouds hold of it there.
+            use deocc_robot::place::{build_map, PlaceOptions, SupportPlane, UnseenSpace};
+            let popts = PlaceOptions {
+                footprint: deocc_eval::place::FOOTPRINT_M,
+                height: deocc_eval::place::HEIGHT_M,
+                ..PlaceOptions::default()
+            };
+            let corners: Vec<(f32, f32)> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+                .iter()
+                .map(|&(sx, sy)| table.to_world(sx * table.size.x / 2.0, sy * table.size.y / 2.0))
+                .collect();
+            let plane = SupportPlane {
+                height: h,
+                bounds: [
+                    corners.iter().map(|c| c.0).fold(f32::MAX, f32::min),
+                    corners.iter().map(|c| c.1).fold(f32::MAX, f32::min),
+                    corners.iter().map(|c| c.0).fold(f32::MIN, f32::max),
+                    corners.iter().map(|c| c.1).fold(f32::MIN, f32::max),
+                ],
+                points: 0,
+            };
+            let gt = deocc_synth::ground_truth::object_surfaces(
+                &r.scene,
+                deocc_eval::place::GT_DENSITY,
+                seed,
+            );
+            let truth = build_map(&gt.positions, &plane, &popts, UnseenSpace::AsPoints)?;
+            let map = build_map(
+                &out.completed.positions,
+                &plane,
+                &popts,
+                UnseenSpace::AsPoints,
+            )?;
+            let gids = gt.instance.as_ref().unwrap();
+            let mut blame = std::collections::BTreeMap::<u32, usize>::new();
+            let r_m = 0.06f32;
+            for i in 0..map.placeable.len() {
+                if !map.placeable[i] || truth.placeable[i] {
+                    continue;
+                }
+                let c = map.cell_center(i);
+                let mut best: Option<(u32, f32)> = None;
+                for (p, &id) in gt.positions.iter().zip(gids) {
+                    if id == table.instance_id as u32 || p.z < h + 0.005 {
+                        continue;
+                    }
+                    let d = ((p.x - c.x).powi(2) + (p.y - c.y).powi(2)).sqrt();
+                    if d < r_m && best.is_none_or(|b| d < b.1) {
+                        best = Some((id, d));
+                    }
+                }
+                *blame.entry(best.map_or(0, |b| b.0)).or_default() += 1;
+            }
+            let near = |cloud: &deocc_geometry::PointCloud, id: u32| {
+                cloud
+                    .instance
+                    .as_ref()
+                    .unwrap()
+                    .iter()
+                    .filter(|&&i| i == id)
+                    .count()
+            };
+            let rows: Vec<String> = blame
+                .iter()
+                .map(|(&id, n)| {
+                    format!(
+                        "object {id}: {n} cells (completed holds {} of its points, observed {})",
+                        near(&out.completed, id),
+                        near(&out.observed, id)
+                    )
+                })
+                .collect();
+            println!("  false-placeable cells by the true object in the way: {rows:?}");
+            for &id in blame.keys().filter(|&&id| id > 0) {
+                for i in out
+                    .report
+                    .instances
+                    .iter()
+                    .filter(|i| u32::from(i.instance_id) == id)
+                {
+                    println!(
+                        "    instance {id}: occluded in {:?}, selected {:?}, generated {}",
+                        i.occluded_in_views, i.selected_views, i.generated_points
+                    );
+                }
+                for c in out
+                    .report
+                    .completions
+                    .iter()
+                    .filter(|c| u32::from(c.instance_id) == id)
+                {
+                    println!("    completion: {} visible {} amodal {} new {} gated {} seen-through {:?} spread-dropped {} uncertain-dropped {}", c.completer, c.visible_px, c.amodal_px, c.new_points, c.gated, c.seen_through_fraction, c.spread_dropped, c.uncertain_dropped);
+                }
+            }
+        }
+        {
+            let gen = out.completed.generated.as_ref().unwrap();
+            let mut outside = [0usize; 4];
+            let mut by_prov = [0usize; 4];
+            let mut sides = std::collections::BTreeMap::new();
+            for (p, &g) in out.completed.positions.iter().zip(gen) {
+                if (p.z - h).abs() > 0.01 {
+                    continue;
+                }
+                let (dx, dy) = (p.x - table.x, p.y - table.y);
+                let (co, si) = (table.yaw.cos(), table.yaw.sin());
+                let (lx, ly) = (co * dx + si * dy, -si * dx + co * dy);
+                let o = (lx.abs() - table.size.x / 2.0).max(ly.abs() - table.size.y / 2.0);
+                if o > 0.0 && o < 0.03 && g == 2 {
+                    let side = if lx.abs() - table.size.x / 2.0 > ly.abs() - table.size.y / 2.0 {
+                        if lx > 0.0 {
+                            "+x"
+                        } else {
+                            "-x"
+                        }
+                    } else if ly > 0.0 {
+                        "+y"
+                    } else {
+                        "-y"
+                    };
+                    *sides.entry(side).or_insert(0usize) += 1;
+                }
+                if o > 0.0 {
+                    outside[((o / 0.01) as usize).min(3)] += 1;
+                    by_prov[g as usize] += 1;
+                }
+            }
+            println!("  points at the table's height outside its top, by cm outside: {outside:?}, by provenance {by_prov:?}, fill by side {sides:?}");
         }
         let mut fill = [0usize; 8];
         let mut fill_dz = Vec::new();

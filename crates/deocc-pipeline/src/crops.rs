@@ -118,7 +118,28 @@ pub fn make_crop(
             None => [0; 3],
         })
         .collect();
-    let condition = CropCondition::new(r, rgb, visible, visible_rel, scene_rel, Some(scale_m));
+    let mut condition = CropCondition::new(r, rgb, visible, visible_rel, scene_rel, Some(scale_m));
+    // The prior reads a band without depth inside the image (a projector's shadow, a stereo
+    // invalid band between the object and what hides it) as what borders it nearest, so the
+    // hidden part may run on through it behind an occluder, and the band is no silhouette.
+    let measured: Vec<bool> = (0..n)
+        .map(|k| source_pixel[k].is_none() || observed[k] > 0.0)
+        .collect();
+    // The object's own pixels without depth are seen in the image: the prior starts from the
+    // whole mask.
+    if measured.iter().any(|&m| !m) {
+        let bridged = bridge_unmeasured(&condition.scene_depth, &measured, r, BAND_BRIDGE_PX);
+        let seen: Vec<bool> = source_pixel
+            .iter()
+            .map(|src| src.is_some_and(|i| inst.ids[i] == id))
+            .collect();
+        condition.prior = deocc_completion::priors::mask_prior(
+            deocc_completion::priors::MaskPrior::EllipseOrBoxInFront,
+            &seen,
+            &bridged,
+            r,
+        );
+    }
     let window = CropWindow {
         instance_id: id,
         view,
@@ -215,4 +236,80 @@ pub fn seen_elsewhere(
         rgb: seen.rgb,
     });
     Elsewhere { front, back }
+}
+
+/// Crop pixels a band without depth is bridged across ([`bridge_unmeasured`]).
+const BAND_BRIDGE_PX: usize = 4;
+
+/// `rel` with its unmeasured pixels (`measured` false) given the nearest (least) relative depth
+/// of the pixels around them, grown `steps` pixels into each unmeasured region (4-neighbours a
+/// step); pixels still unreached keep their value.
+fn bridge_unmeasured(rel: &[f32], measured: &[bool], r: usize, steps: usize) -> Vec<f32> {
+    let mut out = rel.to_vec();
+    let mut known = measured.to_vec();
+    for _ in 0..steps {
+        let (prev, prev_known) = (out.clone(), known.clone());
+        for k in 0..r * r {
+            if prev_known[k] {
+                continue;
+            }
+            let (u, v) = (k % r, k / r);
+            let neighbours = [
+                (u > 0).then(|| k - 1),
+                (u + 1 < r).then(|| k + 1),
+                (v > 0).then(|| k - r),
+                (v + 1 < r).then(|| k + r),
+            ];
+            let nearest = neighbours
+                .iter()
+                .flatten()
+                .filter(|&&q| prev_known[q])
+                .map(|&q| prev[q])
+                .fold(f32::INFINITY, f32::min);
+            if nearest.is_finite() {
+                out[k] = nearest;
+                known[k] = true;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod bridge_tests {
+    use super::*;
+
+    /// A band without depth between an occluder (in front, -0.5) and the object (0) takes the
+    /// occluder's depth up to the bridge width; measured pixels never change; pixels beyond the
+    /// bridge's reach keep their value.
+    #[test]
+    fn a_band_without_depth_takes_the_nearest_depth_beside_it() {
+        let r = 12;
+        // Columns 0-2 occluder, 3-5 no depth, 6-11 object at 0; row 0 is all unmeasured.
+        let mut rel = vec![0.0f32; r * r];
+        let mut measured = vec![true; r * r];
+        for v in 0..r {
+            for u in 0..r {
+                let k = v * r + u;
+                if u < 3 {
+                    rel[k] = -0.5;
+                } else if u < 6 {
+                    measured[k] = false;
+                }
+            }
+        }
+        let out = bridge_unmeasured(&rel, &measured, r, 2);
+        for v in 0..r {
+            let at = |u: usize| out[v * r + u];
+            assert_eq!(at(0), -0.5);
+            assert_eq!(at(7), 0.0);
+            // One step from the occluder and from the object: the least of the two sides.
+            assert_eq!(at(3), -0.5, "row {v}");
+            assert_eq!(at(5), 0.0, "row {v}");
+            // Two steps from both sides: the occluder's 2-step front meets the object's.
+            assert_eq!(at(4), -0.5, "row {v}");
+        }
+        // Without steps nothing changes.
+        assert_eq!(bridge_unmeasured(&rel, &measured, r, 0), rel);
+    }
 }

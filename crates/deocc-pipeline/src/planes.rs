@@ -723,6 +723,12 @@ fn mask_points(
         let depth = f.depth.data();
         let centre = f.camera.center();
         let noise = deocc_geometry::noise::DepthNoise::estimate(&f.depth);
+        let on_plane = |x: usize, y: usize| {
+            let j = y * w + x;
+            let q = f.camera.unproject_pixel(x as u32, y as u32, depth[j]);
+            let tol = opts.inlier_m.max(MASK_NOISE_SIGMAS * noise.sigma(depth[j]));
+            (normal.dot(&q.coords) - offset).abs() <= tol
+        };
         for v in 0..h {
             for u in 0..w {
                 let i = v * w + u;
@@ -744,9 +750,7 @@ fn mask_points(
                             if depth[j] <= 0.0 || !ids.contains(&map.ids[j]) {
                                 continue;
                             }
-                            let q = f.camera.unproject_pixel(x as u32, y as u32, depth[j]);
-                            let tol = opts.inlier_m.max(MASK_NOISE_SIGMAS * noise.sigma(depth[j]));
-                            if (normal.dot(&q.coords) - offset).abs() <= tol {
+                            if on_plane(x as usize, y as usize) {
                                 on += 1;
                             } else {
                                 off += 1;
