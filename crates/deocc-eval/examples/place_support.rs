@@ -17,13 +17,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scenes: usize = args.next().map_or(Ok(5), |s| s.parse())?;
     let mut preset = deocc_synth::dataset::place_v1();
     use deocc_synth::sensor_kind::SensorKind;
-    let kind = match sensor.as_str() {
-        "clean" => SensorKind::Clean,
-        "structured-light" => SensorKind::StructuredLight,
-        "active-stereo" => SensorKind::ActiveStereo,
-        "time-of-flight" => SensorKind::TimeOfFlight,
-        other => return Err(format!("unknown sensor {other}").into()),
-    };
+    let kind = SensorKind::parse(&sensor)?;
     deocc_eval::with_sensor(&mut preset, kind);
     let opts = deocc_pipeline::PipelineOptions::default();
     let rules = CompleterChain::single(deocc_completion::rules::RulesCompleter::default());
