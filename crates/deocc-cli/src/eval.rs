@@ -234,7 +234,7 @@ fn perception(a: PerceptionArgs) -> Result<()> {
         + a.failure_scenes
             .min(deocc_synth::dataset::chairs_v1().seeds.len());
     let pb = crate::progress::bar(total as u64, "scenes");
-    let sensor = a.sensor.kind()?;
+    let sensor = a.sensor.kind_without_burst("deocc eval perception")?;
     let mut clean = a.pipeline.options()?.depth_clean;
     clean.enabled &= !a.no_depth_clean;
     let report = deocc_eval::perception::perception_benchmark(
@@ -273,7 +273,7 @@ fn reconstruction(a: ReconstructionArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
     let n = a.scenes.min(deocc_synth::dataset::bench_v1().seeds.len());
     let pb = crate::progress::bar(n as u64, "scenes");
-    let sensor = a.sensor.kind()?;
+    let sensor = a.sensor.kind_without_burst("deocc eval reconstruction")?;
     let report = deocc_eval::reconstruction::reconstruction_benchmark(
         &chain,
         &opts,
@@ -440,9 +440,14 @@ fn amodal(a: AmodalArgs) -> Result<()> {
     if a.sample_flow {
         completer.reads_mean = false;
     }
-    let data = test_pairs(a.data.as_ref(), &a.split, 120, a.sensor.kind()?)?
-        .with_mask_prior(completer.model.config.mask_prior)
-        .with_seen_elsewhere(!a.no_seen_elsewhere);
+    let data = test_pairs(
+        a.data.as_ref(),
+        &a.split,
+        120,
+        a.sensor.kind_without_burst("deocc eval amodal")?,
+    )?
+    .with_mask_prior(completer.model.config.mask_prior)
+    .with_seen_elsewhere(!a.no_seen_elsewhere);
     if !a.no_seen_elsewhere && !data.set.has_elsewhere() {
         eprintln!(
             "note: these pairs carry no other views' observations (made before they were \

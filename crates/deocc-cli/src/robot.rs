@@ -133,6 +133,21 @@ fn answer(
     Ok(())
 }
 
+/// Reads placer settings from a JSON file, or the defaults.
+pub fn place_options(path: Option<&Path>) -> Result<PlaceOptions> {
+    let o: PlaceOptions = match path {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            deocc_io::cameras::options_from_json(&text)
+                .map_err(|e| anyhow::anyhow!("{}: place options: {e}", p.display()))?
+        }
+        None => PlaceOptions::default(),
+    };
+    o.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(o)
+}
+
 /// Reads planner settings from a JSON file, or the defaults.
 pub fn grasp_options(path: Option<&Path>) -> Result<GraspOptions> {
     let o: GraspOptions = match path {
@@ -285,15 +300,15 @@ pub fn grasp(a: GraspArgs) -> Result<()> {
     let planner = AntipodalPlanner {
         options: options.clone(),
     };
-    // The envelope of `generated_error_m`: each generated point's stated expected error.
-    let errors = (options.generated_error_m > 0.0)
-        .then(|| {
-            cloud
-                .generated
-                .as_deref()
-                .map(|g| deocc_robot::grasp::stated_errors(g, Some(&ids), &fitted, &options))
-        })
-        .flatten();
+    // The planner's envelope: the cloud's expected errors (`expected_error_scale`) or the
+    // stated one (`generated_error_m`).
+    let errors = deocc_robot::grasp::envelope_errors(
+        cloud.generated.as_deref(),
+        cloud.expected_error.as_deref(),
+        Some(&ids),
+        &fitted,
+        &options,
+    );
     let target_errors: Option<Vec<f32>> = errors.as_ref().map(|e| {
         e.iter()
             .zip(&ids)
@@ -423,7 +438,7 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         eye: (frames == 1).then_some(robot),
     };
     let (maps, best) = placer
-        .plan(&cloud.positions, &robot)
+        .plan_with_errors(&cloud.positions, cloud.expected_error.as_deref(), &robot)
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.scene.display()))?;
     let Some(best) = best else {
         bail!(
@@ -518,7 +533,9 @@ pub fn recording_annotations(
         eye: None,
     };
     let (mut placeable, mut placement) = (Vec::new(), None);
-    if let Ok((maps, best)) = placer.plan(&cloud.positions, &robot) {
+    if let Ok((maps, best)) =
+        placer.plan_with_errors(&cloud.positions, cloud.expected_error.as_deref(), &robot)
+    {
         let to_world = placer.options.level().inverse();
         for m in &maps {
             for (i, _) in m.placeable.iter().enumerate().filter(|(_, &p)| p) {

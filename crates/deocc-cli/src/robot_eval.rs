@@ -133,10 +133,15 @@ pub struct PlaceArgs {
     sensor: crate::sensor::SensorArgs,
     #[command(flatten)]
     pipeline: crate::completers::PipelineArgs,
+    /// Placer settings (JSON of PlaceOptions: cell size, support, gaps, the envelope's
+    /// `expected_error_scale`, ...); the object's footprint and height are the benchmark's.
+    #[arg(long)]
+    place_options: Option<PathBuf>,
 }
 
 pub fn place(a: PlaceArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
+    let planner = crate::robot::place_options(a.place_options.as_deref())?;
     let chains = place_chains(a.weights.as_ref(), &opts)?;
     let mut preset = deocc_synth::dataset::preset(&a.preset)?;
     a.sensor.apply(&mut preset)?;
@@ -153,8 +158,15 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         a.picture_scenes,
         &mut write as deocc_eval::place::PictureSink<'_>,
     ));
-    let report =
-        deocc_eval::place::place_benchmark(&preset, &chains, &opts, n, picture, &mut || pb.inc(1))?;
+    let report = deocc_eval::place::place_benchmark(
+        &preset,
+        &chains,
+        &opts,
+        &planner,
+        n,
+        picture,
+        &mut || pb.inc(1),
+    )?;
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())

@@ -45,6 +45,11 @@ impl SceneOptions {
         self.sensor.kind()
     }
 
+    /// Frames from each camera pose (`--burst`).
+    pub fn burst(&self) -> usize {
+        self.sensor.burst as usize
+    }
+
     pub fn config(&self) -> Result<SceneConfig> {
         let user_meshes = self
             .meshes
@@ -79,6 +84,7 @@ impl SceneOptions {
             },
             held_out_shapes: self.held_out_shapes,
             sensor: self.sensor.kind()?,
+            burst: self.burst(),
             gt_points_per_m2: self.gt_density,
             user_meshes,
             ..SceneConfig::default()

@@ -15,6 +15,10 @@ pub struct SensorArgs {
     /// same as `--sensor gaussian`.
     #[arg(long)]
     pub sensor_noise: bool,
+    /// Frames the sensor takes from each camera pose (a robot holding still), each with its own
+    /// noise; the pipeline fuses them into one (its `burst` stage).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub burst: u32,
 }
 
 impl SensorArgs {
@@ -30,9 +34,26 @@ impl SensorArgs {
         }
     }
 
-    /// Sets `preset`'s sensor and names it in the preset's name.
+    /// The sensor in force for a command that measures frames one at a time: `--burst` above 1
+    /// is refused, naming `command`, rather than ignored.
+    pub fn kind_without_burst(&self, command: &str) -> anyhow::Result<SensorKind> {
+        if self.burst > 1 {
+            anyhow::bail!(
+                "--burst {}: `{command}` does not take bursts (they are for `deocc synth scenes` \
+                 and `deocc eval objects | grasp | place`)",
+                self.burst
+            );
+        }
+        self.kind()
+    }
+
+    /// Sets `preset`'s sensor and burst and names them in the preset's name.
     pub fn apply(&self, preset: &mut deocc_synth::dataset::Preset) -> anyhow::Result<()> {
         deocc_eval::with_sensor(preset, self.kind()?);
+        if self.burst > 1 {
+            preset.config.burst = self.burst as usize;
+            preset.name = format!("{}, bursts of {} frames", preset.name, self.burst);
+        }
         Ok(())
     }
 }

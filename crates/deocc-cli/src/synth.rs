@@ -124,6 +124,7 @@ fn scenes(a: ScenesArgs) -> Result<()> {
                 p.seeds.truncate(n);
             }
             deocc_eval::with_sensor(&mut p, a.options.sensor_kind()?);
+            p.config.burst = a.options.burst();
             p
         }
         None => Preset {
@@ -181,7 +182,7 @@ fn pairs(a: PairsArgs) -> Result<()> {
     let config = PairConfig {
         resolution: a.resolution,
         edge_objects: a.edge_objects,
-        sensor: a.sensor.kind()?,
+        sensor: a.sensor.kind_without_burst("deocc synth pairs")?,
         ..PairConfig::default()
     };
     let name = format!("{split:?}").to_lowercase();

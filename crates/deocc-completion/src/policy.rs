@@ -41,6 +41,11 @@ pub struct FusePolicy {
     /// instead, so that the model abstains where it expects to be off rather than leaving a
     /// hole.
     pub uncertain_to_rules: bool,
+    /// The expected error (metres) each generated point of this completer carries when the
+    /// completion has no estimate of its own (a completer with one, GL-DoT's error head, gives
+    /// each point its own). The cloud's `expected_error`, which the grasp and place planners
+    /// may grow the hidden side by.
+    pub stated_error_m: f32,
 }
 
 impl FusePolicy {
@@ -53,6 +58,7 @@ impl FusePolicy {
         min_revealed_confidence: 0.0,
         max_expected_error_m: 0.0,
         uncertain_to_rules: false,
+        stated_error_m: 0.0,
     };
 
     /// A learned completer's policy (GL-DoT's), each value measured on bench-v1-like tuning
@@ -67,7 +73,9 @@ impl FusePolicy {
     ///   78.4% 0.488; 0.9 keeps furniture's recall above the rules' (+9.2% [+3.6%, +15.9%]);
     /// - expected error 3 cm with the rules' fallback: 82.9% -> 86.5% within 2 cm, the chain's
     ///   recall over the rules +11.9% -> +10.2%, furniture level with the rules;
-    /// - no median filter (it cost furniture's hidden recall; docs/decisions.md).
+    /// - no median filter (it cost furniture's hidden recall; docs/decisions.md);
+    /// - stated error 1 cm for a model without the error head (64-80% of its points within 2 cm
+    ///   of a true surface above).
     pub const LEARNED: FusePolicy = FusePolicy {
         depth_median_px: 0,
         depth_median_max_crop_m: 0.0,
@@ -76,6 +84,7 @@ impl FusePolicy {
         min_revealed_confidence: 0.9,
         max_expected_error_m: 0.03,
         uncertain_to_rules: true,
+        stated_error_m: 0.01,
     };
 
     /// The rules completer's policy: its far side (the near side mirrored) no deeper than
@@ -83,9 +92,11 @@ impl FusePolicy {
     /// their share within 2 cm of a true surface and its hidden recall, off 62.8k 41.6% 0.424,
     /// 0.15 m 38.4k 63.0% 0.422, 0.10 m 34.8k 67.3% 0.417, 0.08 m 29.4k 70.6% 0.407: the largest
     /// cap that keeps the baseline's recall. Its depth is smooth already (planes and mirrored
-    /// surfaces), so no median; its probability is its prior, so no confidence floor.
+    /// surfaces), so no median; its probability is its prior, so no confidence floor. Its stated
+    /// error, 2 cm, is the distance within which 63% of its points lie.
     pub const RULES: FusePolicy = FusePolicy {
         max_thickness_m: 0.15,
+        stated_error_m: 0.02,
         ..FusePolicy::NONE
     };
 
@@ -110,7 +121,7 @@ impl FusePolicy {
     }
 
     /// Each field with its stated range, for validation and help: (name, value, min, max).
-    pub fn numeric_fields(&self) -> [(&'static str, f64, f64, f64); 6] {
+    pub fn numeric_fields(&self) -> [(&'static str, f64, f64, f64); 7] {
         [
             ("depth_median_px", self.depth_median_px as f64, 0.0, 16.0),
             (
@@ -138,6 +149,7 @@ impl FusePolicy {
                 0.0,
                 10.0,
             ),
+            ("stated_error_m", self.stated_error_m as f64, 0.0, 1.0),
         ]
     }
 
@@ -180,6 +192,8 @@ pub struct FusePatch {
     pub max_expected_error_m: Option<f32>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub uncertain_to_rules: Option<bool>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stated_error_m: Option<f32>,
 }
 
 impl FusePatch {
@@ -206,6 +220,9 @@ impl FusePatch {
         if let Some(v) = self.uncertain_to_rules {
             policy.uncertain_to_rules = v;
         }
+        if let Some(v) = self.stated_error_m {
+            policy.stated_error_m = v;
+        }
         policy
     }
 
@@ -225,6 +242,7 @@ impl FusePatch {
                 .or(self.min_revealed_confidence),
             max_expected_error_m: other.max_expected_error_m.or(self.max_expected_error_m),
             uncertain_to_rules: other.uncertain_to_rules.or(self.uncertain_to_rules),
+            stated_error_m: other.stated_error_m.or(self.stated_error_m),
         }
     }
 }

@@ -314,14 +314,13 @@ pub fn grasp_benchmark(
             })?;
             // The planner's envelope: the stated error of each generated point.
             let fitted = out.report.fitted_instances();
-            let errors = (options.generated_error_m > 0.0)
-                .then(|| {
-                    cloud
-                        .generated
-                        .as_deref()
-                        .map(|g| deocc_robot::grasp::stated_errors(g, Some(&ids), &fitted, options))
-                })
-                .flatten();
+            let errors = deocc_robot::grasp::envelope_errors(
+                cloud.generated.as_deref(),
+                cloud.expected_error.as_deref(),
+                Some(&ids),
+                &fitted,
+                options,
+            );
             let (mut row, _) = score_cloud(
                 table,
                 &planner,

@@ -28,8 +28,8 @@ use deocc_robot::picture::{
     captioned, comparison_image, comparison_legend, side_by_side, RgbImage,
 };
 use deocc_robot::place::{
-    build_map, build_map_seen_from, choose_placement, compare_maps, PlaceMap, PlaceOptions,
-    SupportPlane, UnseenSpace,
+    build_map, build_map_seen_from, build_map_with_errors, choose_placement, compare_maps,
+    PlaceMap, PlaceOptions, SupportPlane, UnseenSpace,
 };
 use nalgebra::Point3;
 use serde::Serialize;
@@ -188,11 +188,13 @@ pub type PictureSink<'a> = &'a mut dyn FnMut(u64, RgbImage) -> Result<(), EvalEr
 /// chain. With `picture = Some((m, f))`, the first `m` scenes' maps against the ground truth (one
 /// panel a map, captioned with its name, in the rows' order without the ground truth:
 /// [`deocc_robot::picture::comparison_image`], then the legend) are handed to `f` with the
-/// scene's seed; the other scenes are not drawn.
+/// scene's seed; the other scenes are not drawn. `planner` gives the placer's settings; the
+/// object's footprint and height are the benchmark's.
 pub fn place_benchmark(
     preset: &deocc_synth::dataset::Preset,
     chains: &[crate::ChainRow],
     opts: &deocc_pipeline::PipelineOptions,
+    planner: &PlaceOptions,
     scenes: usize,
     mut picture: Option<(usize, PictureSink<'_>)>,
     tick: &mut dyn FnMut(),
@@ -207,7 +209,7 @@ pub fn place_benchmark(
     let popts = PlaceOptions {
         footprint: FOOTPRINT_M,
         height: HEIGHT_M,
-        ..PlaceOptions::default()
+        ..planner.clone()
     };
     let mut names = vec![
         "observed_optimistic".to_string(),
@@ -298,11 +300,13 @@ pub fn place_benchmark(
         for row in chains {
             let (name, chain) = (&row.name, &row.chain);
             let out = crate::run_as_product(&input, chain, row.options_or(opts))?;
-            let m = build_map(
+            let m = build_map_with_errors(
                 &out.completed.positions,
+                out.completed.expected_error.as_deref(),
                 &plane,
                 &popts,
                 UnseenSpace::AsPoints,
+                None,
             )
             .map_err(err)?;
             panel(&m, name);
@@ -420,8 +424,16 @@ mod tests {
             pictures.push((seed, img));
             Ok(())
         };
-        let r =
-            place_benchmark(&preset, &chains, &opts, 3, Some((2, &mut keep)), &mut || {}).unwrap();
+        let r = place_benchmark(
+            &preset,
+            &chains,
+            &opts,
+            &PlaceOptions::default(),
+            3,
+            Some((2, &mut keep)),
+            &mut || {},
+        )
+        .unwrap();
         // One picture a scene for the first two scenes only, a panel a map but the ground
         // truth's.
         assert_eq!(pictures.len(), 2);

@@ -71,6 +71,12 @@ pub struct PointCloud {
     /// Confidence per point in [0, 1]: 1 for observed points; for generated ones the probability
     /// the completer gave its pixel of belonging to the object (see the pipeline's fusion stage).
     pub confidence: Option<Vec<f32>>,
+    /// Expected error per point, metres (finite, >= 0): 0 for observed points; for generated
+    /// ones how far off the completer expects the point to be (GL-DoT's error head through the
+    /// depth fit's scale, a fitted surface's residual, or a completer's stated estimate; see the
+    /// pipeline's fusion stage). A grasp or place planner grows each generated point by it on
+    /// the side it cannot see (a finger may not close where the object could be).
+    pub expected_error: Option<Vec<f32>>,
 }
 
 impl PointCloud {
@@ -105,6 +111,20 @@ impl PointCloud {
         check("instance ids", self.instance.as_ref().map(Vec::len))?;
         check("generated flags", self.generated.as_ref().map(Vec::len))?;
         check("confidences", self.confidence.as_ref().map(Vec::len))?;
+        check(
+            "expected errors",
+            self.expected_error.as_ref().map(Vec::len),
+        )?;
+        if let Some(index) = self
+            .expected_error
+            .as_ref()
+            .and_then(|e| e.iter().position(|&x| !(x.is_finite() && x >= 0.0)))
+        {
+            return Err(GeometryError::InvalidArgument(format!(
+                "expected error {} at index {index}: each must be finite and >= 0 (metres)",
+                self.expected_error.as_ref().map_or(f32::NAN, |e| e[index])
+            )));
+        }
         if let Some(index) = self
             .positions
             .iter()
@@ -151,6 +171,7 @@ impl PointCloud {
             instance: pick(&self.instance, indices),
             generated: pick(&self.generated, indices),
             confidence: pick(&self.confidence, indices),
+            expected_error: pick(&self.expected_error, indices),
         }
     }
 
@@ -161,8 +182,8 @@ impl PointCloud {
     }
 
     /// Appends `other`. An attribute present on only one side is filled with a default on the
-    /// other (grey colour, zero normal, instance 0, observed, confidence 1), so provenance is never
-    /// lost.
+    /// other (grey colour, zero normal, instance 0, observed, confidence 1, expected error 0), so
+    /// provenance is never lost.
     pub fn append(&mut self, other: &PointCloud) {
         fn merge<T: Copy>(
             a: &mut Option<Vec<T>>,
@@ -188,12 +209,19 @@ impl PointCloud {
         merge(&mut self.instance, &other.instance, na, nb, 0);
         merge(&mut self.generated, &other.generated, na, nb, 0);
         merge(&mut self.confidence, &other.confidence, na, nb, 1.0);
+        merge(&mut self.expected_error, &other.expected_error, na, nb, 0.0);
         self.positions.extend_from_slice(&other.positions);
     }
 
     /// Sets the confidence of every point.
     pub fn with_confidence(mut self, confidence: f32) -> Self {
         self.confidence = Some(vec![confidence; self.len()]);
+        self
+    }
+
+    /// Sets the expected error (metres) of every point.
+    pub fn with_expected_error(mut self, error_m: f32) -> Self {
+        self.expected_error = Some(vec![error_m; self.len()]);
         self
     }
 

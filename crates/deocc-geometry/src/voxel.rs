@@ -99,7 +99,9 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> 
             .map(|g| g.iter().map(|(_, i)| gen[*i as usize]).min().unwrap_or(0))
             .collect()
     });
-    let confidence = cloud.confidence.as_ref().map(|conf| {
+    // Confidences and expected errors: the mean over the points of the voxel's winning
+    // provenance (the one its code reports).
+    let winners_mean = |values: &Vec<f32>| -> Vec<f32> {
         groups
             .par_iter()
             .map(|g| {
@@ -110,11 +112,15 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> 
                     .iter()
                     .map(|(_, i)| *i as usize)
                     .filter(|&i| wins(i))
-                    .fold((0f64, 0usize), |(s, n), i| (s + f64::from(conf[i]), n + 1));
+                    .fold((0f64, 0usize), |(s, n), i| {
+                        (s + f64::from(values[i]), n + 1)
+                    });
                 (s / n.max(1) as f64) as f32
             })
             .collect()
-    });
+    };
+    let confidence = cloud.confidence.as_ref().map(winners_mean);
+    let expected_error = cloud.expected_error.as_ref().map(winners_mean);
     let instance = cloud.instance.as_ref().map(|ids| {
         groups
             .par_iter()
@@ -140,6 +146,7 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> 
         instance,
         generated,
         confidence,
+        expected_error,
     })
 }
 
@@ -264,9 +271,10 @@ impl VoxelGrid {
         same(&mut self.colors, part.colors.is_some(), "colours")?;
         same(&mut self.instance, part.instance.is_some(), "instance ids")?;
         same(&mut self.generated, part.generated.is_some(), "provenance")?;
-        if part.normals.is_some() || part.confidence.is_some() {
+        if part.normals.is_some() || part.confidence.is_some() || part.expected_error.is_some() {
             return Err(GeometryError::InvalidArgument(
-                "voxel grid: normals and confidences are not averaged here; use voxel_downsample"
+                "voxel grid: normals, confidences and expected errors are not averaged here; use \
+                 voxel_downsample"
                     .into(),
             ));
         }
@@ -343,6 +351,7 @@ impl VoxelGrid {
             instance,
             generated,
             confidence: None,
+            expected_error: None,
         }
     }
 }

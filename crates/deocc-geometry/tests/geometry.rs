@@ -464,6 +464,59 @@ fn confidence_is_averaged_over_the_winning_provenance_and_filled_with_one() {
     ));
 }
 
+/// A point's expected error travels with it: averaged like the confidence over the voxel's
+/// winning provenance (observed points count 0), 0 for points appended without one, selected
+/// with its point; a negative or non-finite error is refused by name.
+#[test]
+fn expected_errors_travel_with_their_points() {
+    use nalgebra::Point3;
+    let mut cloud = PointCloud::from_positions(vec![
+        Point3::new(0.01, 0.01, 0.01),
+        Point3::new(0.02, 0.01, 0.01),
+        Point3::new(0.03, 0.01, 0.01),
+        Point3::new(0.51, 0.01, 0.01),
+        Point3::new(0.52, 0.01, 0.01),
+    ]);
+    cloud.generated = Some(vec![1, 1, 0, 1, 1]);
+    cloud.expected_error = Some(vec![0.01, 0.03, 0.0, 0.02, 0.04]);
+    cloud.validate().unwrap();
+    let down = voxel_downsample(&cloud, 0.1).unwrap();
+    let e = down.expected_error.as_deref().unwrap();
+    assert_eq!(e[0], 0.0, "the observed point wins its voxel");
+    assert!((e[1] - 0.03).abs() < 1e-6, "{e:?}");
+    let picked = cloud.select(&[4, 1]);
+    assert_eq!(picked.expected_error.as_deref(), Some(&[0.04f32, 0.03][..]));
+    let observed = PointCloud::from_positions(vec![Point3::new(5.0, 5.0, 5.0)]);
+    let fused = fuse_generated(&observed, &cloud.filter(|i| i != 2), 0.1).unwrap();
+    let e = fused.expected_error.as_deref().unwrap();
+    assert_eq!(e.len(), 3);
+    assert_eq!(
+        e[0], 0.0,
+        "an observed point appended without errors is exact"
+    );
+    assert!(
+        (e[1] - 0.02).abs() < 1e-6 && (e[2] - 0.03).abs() < 1e-6,
+        "{e:?}"
+    );
+    let uniform = PointCloud::from_positions(vec![Point3::origin(); 2]).with_expected_error(0.005);
+    assert_eq!(uniform.expected_error, Some(vec![0.005; 2]));
+    for bad_value in [-0.01, f32::NAN, f32::INFINITY] {
+        let mut bad = cloud.clone();
+        bad.expected_error.as_mut().unwrap()[3] = bad_value;
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("expected error") && e.contains("index 3"), "{e}");
+    }
+    let mut short = cloud.clone();
+    short.expected_error = Some(vec![0.0; 4]);
+    assert!(matches!(
+        short.validate(),
+        Err(GeometryError::SizeMismatch {
+            what: "expected errors",
+            ..
+        })
+    ));
+}
+
 #[test]
 fn fusion_adds_only_new_surface() {
     let observed = PointCloud::from_positions(common::random_points(5000, 81, 0.5));

@@ -469,7 +469,7 @@ fn skip_property<R: BufRead>(
     Ok(())
 }
 
-const KNOWN_VERTEX_PROPERTIES: [&str; 19] = [
+const KNOWN_VERTEX_PROPERTIES: [&str; 20] = [
     "x",
     "y",
     "z",
@@ -489,6 +489,7 @@ const KNOWN_VERTEX_PROPERTIES: [&str; 19] = [
     "instance_id",
     "generated",
     "confidence",
+    "expected_error",
 ];
 
 type VertexData = (PointCloud, Vec<(String, Vec<f64>)>);
@@ -523,6 +524,7 @@ fn read_vertices<R: BufRead>(
     let instance = find(&["instance", "instance_id", "label"]);
     let generated = find(&["generated"]);
     let confidence = find(&["confidence"]);
+    let expected_error = find(&["expected_error"]);
     // Colours stored as float (0..1) are scaled to bytes.
     let color_is_float = color.is_some_and(|c| {
         matches!(
@@ -539,6 +541,7 @@ fn read_vertices<R: BufRead>(
         instance: instance.map(|_| Vec::with_capacity(cap)),
         generated: generated.map(|_| Vec::with_capacity(cap)),
         confidence: confidence.map(|_| Vec::with_capacity(cap)),
+        expected_error: expected_error.map(|_| Vec::with_capacity(cap)),
     };
     let extra_columns: Vec<usize> = (0..el.properties.len())
         .filter(|&j| {
@@ -598,6 +601,16 @@ fn read_vertices<R: BufRead>(
                 ));
             }
             out.push(c);
+        }
+        if let (Some(k), Some(out)) = (expected_error, cloud.expected_error.as_mut()) {
+            let e = row[k] as f32;
+            if !(e.is_finite() && e >= 0.0) {
+                return Err(data_err(
+                    path,
+                    format!("vertex {r} has expected_error {e}: it must be finite and >= 0"),
+                ));
+            }
+            out.push(e);
         }
         for (e, &j) in extras.iter_mut().zip(&extra_columns) {
             e.1.push(row[j]);
@@ -730,6 +743,9 @@ fn write_ply_impl(
         if vertices.confidence.is_some() {
             writeln!(w, "property float confidence")?;
         }
+        if vertices.expected_error.is_some() {
+            writeln!(w, "property float expected_error")?;
+        }
         for (name, _) in extras {
             writeln!(w, "property uchar {name}")?;
         }
@@ -778,6 +794,9 @@ fn write_ascii_body(
         }
         if let Some(k) = &c.confidence {
             write!(w, " {}", k[i])?;
+        }
+        if let Some(e) = &c.expected_error {
+            write!(w, " {}", e[i])?;
         }
         for (_, v) in extras {
             write!(w, " {}", v[i])?;
@@ -834,6 +853,9 @@ fn write_binary_body(
         }
         if let Some(k) = &c.confidence {
             row.extend_from_slice(&f(k[i]));
+        }
+        if let Some(e) = &c.expected_error {
+            row.extend_from_slice(&f(e[i]));
         }
         for (_, v) in extras {
             row.push(v[i]);

@@ -59,6 +59,7 @@ fn awkward_cloud() -> PointCloud {
                 })
                 .collect(),
         ),
+        expected_error: Some((0..n).map(|i| (i % 5) as f32 * 0.003_7).collect()),
         positions,
     }
 }
@@ -87,6 +88,7 @@ fn ply_round_trips_bit_exactly_in_every_encoding() {
         assert_eq!(back.instance, cloud.instance);
         assert_eq!(back.generated, cloud.generated);
         assert_eq!(back.confidence, cloud.confidence, "{enc:?}");
+        assert_eq!(back.expected_error, cloud.expected_error, "{enc:?}");
         let nb: Vec<u32> = back
             .normals
             .unwrap()
@@ -142,13 +144,14 @@ fn ply_errors_name_the_file_and_the_problem() {
         "{e}"
     );
 
-    let cases: [(&str, &[u8], &str); 7] = [
+    let cases: [(&str, &[u8], &str); 8] = [
         ("notply.ply", b"hello\n", "does not start with 'ply'"),
         ("noformat.ply", b"ply\nelement vertex 1\nproperty float x\nend_header\n", "no 'format'"),
         ("badtype.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty quux x\nend_header\n", "unknown type"),
         ("noxyz.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n", "lacks x, y or z"),
         ("nan.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 nan 2\n", "non-finite"),
         ("conf.ply", b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty float confidence\nend_header\n0 0 0 1\n1 2 3 1.5\n", "vertex 1 has confidence 1.5"),
+        ("err.ply", b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty float expected_error\nend_header\n0 0 0 0\n1 2 3 -0.01\n", "vertex 1 has expected_error -0.01"),
         ("empty.ply", b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n", "no points"),
     ];
     for (name, content, expect) in cases {

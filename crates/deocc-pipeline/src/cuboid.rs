@@ -305,7 +305,7 @@ pub fn cuboid_instances(
             &pts,
             idx,
             observed,
-            CUBOID_CONFIDENCE,
+            (CUBOID_CONFIDENCE, fit.residual_m),
         ));
         replaced.insert(id as u32);
         let dropped = gen_inst.iter().filter(|&&g| g == id as u32).count();

@@ -1,6 +1,7 @@
 //! The front half: a scene as read, made ready for the run. One function for every caller (the
 //! CLI's `run`, `batch`, `grasp` and `place`, the service, Python, ROS 2), in this order:
 //!
+//! 0. frames taken from one pose (a burst) become one frame ([`crate::burst`]);
 //! 1. a learned depth source (when the caller has one) fills the pixels the sensor did not
 //!    measure ([`crate::depth::fill_scene_depth`]);
 //! 2. the depth front end cleans every frame in units of its own noise ([`crate::depth_clean`]);
@@ -25,6 +26,7 @@ use crate::{PipelineError, PipelineOptions, Registration};
 #[derive(Debug, Clone, Default)]
 pub struct Prepared {
     pub registration: Registration,
+    pub burst: crate::burst::BurstRecord,
     pub depth_fill: Vec<DepthFillReport>,
     pub depth_clean: Vec<DepthCleanRecord>,
     /// One record per frame (all zero for a frame without a given map, or with `segment`).
@@ -55,6 +57,8 @@ pub fn prepare_observed(
     observer: &dyn crate::Observer,
 ) -> Result<Prepared, PipelineError> {
     opts.validate()?;
+    crate::enter(observer, "burst")?;
+    let burst = crate::burst::fuse_bursts(scene, &opts.burst);
     let depth_fill = match depth {
         Some(source) => {
             crate::depth::fill_scene_depth(scene, source, &DepthFillOptions::default())?
@@ -80,6 +84,7 @@ pub fn prepare_observed(
     let segmented = crate::instances::ensure_instances(scene, segmenter)?;
     Ok(Prepared {
         registration,
+        burst,
         depth_fill,
         depth_clean,
         mask_rims,

@@ -80,6 +80,11 @@ pub struct FuseOptions<'a> {
     /// pixel's near side takes its far side with it, as in the mirror check. Counted in the
     /// record's `uncertain_dropped`.
     pub max_expected_error_m: f32,
+    /// The expected error (metres) given to each generated point whose completion carries no
+    /// estimate of its own ([`deocc_completion::FusePolicy::stated_error_m`]); a completion with
+    /// one gives each point its own, through the depth fit's scale and combined with the fit's
+    /// residual scale. It becomes the cloud's `expected_error`, which the planners read.
+    pub stated_error_m: f32,
     /// Only these pixels generate points (`None`: every pixel): how a fallback completer fills
     /// the pixels another completer left out as too uncertain ([`UncertainPixels`]).
     pub only: Option<&'a UncertainPixels>,
@@ -232,10 +237,9 @@ pub fn fuse_completion_detailed(
             d.get(k).is_some_and(|&x| x * metres > s.max_m)
         })
     };
-    let expected = completion
-        .expected_error
-        .as_ref()
-        .filter(|_| opts.max_expected_error_m > 0.0);
+    let estimate = completion.expected_error.as_ref();
+    let error_m = point_error(estimate, metres, fit.scale as f32, opts.stated_error_m);
+    let expected = estimate.filter(|_| opts.max_expected_error_m > 0.0);
     let uncertain = |k: usize, far: bool| {
         expected.is_some_and(|e| {
             let d = if far { &e.far } else { &e.near };
@@ -249,7 +253,9 @@ pub fn fuse_completion_detailed(
     let mut spread_dropped = 0;
     let mut far_side_observed = 0;
     let mut out = Emitted::default();
-    let mut push = |k: usize, z: f32, shade: f32| out.push(window, frame, completion, k, z, shade);
+    let mut push = |k: usize, z: f32, shade: f32, error: f32| {
+        out.push(window, frame, completion, k, z, shade, error)
+    };
     for (k, &is_visible) in visible.iter().enumerate().take(n) {
         if !completion.amodal[k] || window.source_pixel[k].is_none() {
             continue;
@@ -288,7 +294,7 @@ pub fn fuse_completion_detailed(
                 continue;
             }
             if allowed(k, false) {
-                push(k, z, 1.0);
+                push(k, z, 1.0, error_m(k, false));
             }
             z
         };
@@ -316,7 +322,7 @@ pub fn fuse_completion_detailed(
                 uncertain_dropped += 1;
                 left_out.far[k] = true;
             } else if allowed(k, true) {
-                push(k, back, 0.75);
+                push(k, back, 0.75, error_m(k, true));
             }
         }
     }
@@ -331,6 +337,24 @@ pub fn fuse_completion_detailed(
         record,
         left_out,
     )
+}
+
+/// Each generated point's expected error for the planners, by crop pixel and side: the
+/// completer's own estimate (NaN: none) through the fit's scale `metres`, combined with the
+/// fit's residual scale `fit_m`, or `stated_m` without one.
+fn point_error(
+    estimate: Option<&deocc_completion::ExpectedDepthError>,
+    metres: f32,
+    fit_m: f32,
+    stated_m: f32,
+) -> impl Fn(usize, bool) -> f32 + '_ {
+    let fit_m = fit_m.max(0.0);
+    move |k: usize, far: bool| -> f32 {
+        estimate
+            .and_then(|e| (if far { &e.far } else { &e.near }).get(k).copied())
+            .filter(|x| x.is_finite())
+            .map_or(stated_m, |x| (x * metres).hypot(fit_m))
+    }
 }
 
 /// A completion's record before fusion: nothing accepted yet.
@@ -399,9 +423,11 @@ struct Emitted {
     positions: Vec<nalgebra::Point3<f32>>,
     colors: Vec<[u8; 3]>,
     confidence: Vec<f32>,
+    expected_error: Vec<f32>,
 }
 
 impl Emitted {
+    #[allow(clippy::too_many_arguments)]
     fn push(
         &mut self,
         window: &CropWindow,
@@ -410,7 +436,9 @@ impl Emitted {
         k: usize,
         z: f32,
         shade: f32,
+        error_m: f32,
     ) {
+        self.expected_error.push(error_m);
         let (u, v) = window.pixel_centre(k);
         let p_cam = frame.camera.intrinsics.unproject(u, v, z);
         self.positions
@@ -436,6 +464,7 @@ impl Emitted {
             instance: Some(vec![instance_id as u32; len]),
             generated: Some(vec![provenance.code(); len]),
             confidence: Some(self.confidence),
+            expected_error: Some(self.expected_error),
             normals: None,
         }
     }
@@ -832,5 +861,57 @@ mod seen_elsewhere_tests {
         both.sort_unstable();
         all.sort_unstable();
         assert_eq!(both, all, "gate plus fallback is the ungated cloud");
+    }
+
+    /// Each generated point carries an expected error: the completer's own through the fit's
+    /// scale (near or far side, as estimated; the exact fit adds nothing), the stated one where
+    /// the completion has none or a pixel's estimate is NaN.
+    #[test]
+    fn generated_points_carry_their_expected_error() {
+        let (window, visible, mut completion, frame) = setup();
+        let stated = FuseOptions {
+            stated_error_m: 0.02,
+            ..Default::default()
+        };
+        let without = fuse_model(
+            &(
+                window.clone(),
+                visible.clone(),
+                completion.clone(),
+                frame.clone(),
+            ),
+            &stated,
+        );
+        let e = without.expected_error.as_deref().unwrap();
+        assert_eq!(e.len(), without.len());
+        assert!(e.iter().all(|&x| x == 0.02), "{e:?}");
+        let mut near = vec![0.01; 64];
+        let mut far = vec![0.01; 64];
+        for k in 0..64 {
+            if k % 8 == 5 {
+                far[k] = 0.04;
+            }
+            if k % 8 == 7 {
+                near[k] = f32::NAN;
+            }
+        }
+        completion.expected_error = Some(deocc_completion::ExpectedDepthError { near, far });
+        let with = fuse_model(&(window, visible, completion, frame), &stated);
+        assert_eq!(with.len(), without.len());
+        let e = with.expected_error.as_deref().unwrap();
+        // Points are pushed pixel by pixel: a hidden pixel's near side, then its far side.
+        let (mut big, mut stated_n, mut small) = (0, 0, 0);
+        for &x in e {
+            if (x - 0.04).abs() < 1e-4 {
+                big += 1;
+            } else if x == 0.02 {
+                stated_n += 1;
+            } else if (x - 0.01).abs() < 1e-4 {
+                small += 1;
+            }
+        }
+        assert_eq!(big, 8, "column 5's far sides: {e:?}");
+        assert_eq!(stated_n, 8, "column 7's near sides have no estimate: {e:?}");
+        assert_eq!(big + stated_n + small, e.len(), "{e:?}");
     }
 }

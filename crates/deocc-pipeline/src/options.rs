@@ -112,6 +112,8 @@ pub struct PipelineOptions {
     /// pixels of a row or column at most this many pixels apart ([`crate::depth::InterpolatedDepth`];
     /// 0 = off, the default; `deocc run --fill-depth` sets 8). Measured pixels never change.
     pub fill_depth_max_gap_px: u32,
+    /// Burst fusion ([`crate::burst`]): frames taken from one pose become one quieter frame.
+    pub burst: crate::burst::BurstOptions,
     /// The depth front end ([`crate::depth_clean`]): outliers, flying pixels and specks
     /// removed, surfaces smoothed without crossing edges, in units of each frame's own noise.
     pub depth_clean: crate::depth_clean::DepthCleanOptions,
@@ -171,6 +173,7 @@ impl Default for PipelineOptions {
             completers: BTreeMap::new(),
             skip_observed_far_side: SKIP_OBSERVED_FAR_SIDE,
             fill_depth_max_gap_px: 0,
+            burst: crate::burst::BurstOptions::default(),
             depth_clean: crate::depth_clean::DepthCleanOptions::default(),
             mask_rims: crate::mask_rims::MaskRimOptions::default(),
         }
@@ -259,6 +262,7 @@ impl PipelineOptions {
 
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), PipelineError> {
+        self.burst.validate()?;
         self.depth_clean.validate()?;
         self.mask_rims.validate()?;
         if self.fill_depth_max_gap_px > 64 {

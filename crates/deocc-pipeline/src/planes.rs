@@ -551,7 +551,8 @@ pub fn complete_planes(scene: &SceneInput, opts: &PlaneOptions) -> PointCloud {
 }
 
 /// The plane fill of a run (stage 4b): the hidden parts of the planes found, as plane-fill
-/// points with the fill's confidence; nothing when `enabled` is off or no planes were found.
+/// points with the fill's confidence and the planes' inlier tolerance as their expected error;
+/// nothing when `enabled` is off or no planes were found.
 pub fn plane_fill(
     scene: &SceneInput,
     enabled: bool,
@@ -560,7 +561,8 @@ pub fn plane_fill(
 ) -> PointCloud {
     match found {
         Some(found) if enabled => complete_found_planes(scene, found, opts)
-            .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE),
+            .with_confidence(deocc_geometry::cloud::FILL_CONFIDENCE)
+            .with_expected_error(opts.inlier_m),
         _ => PointCloud::default(),
     }
 }

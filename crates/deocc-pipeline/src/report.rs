@@ -157,6 +157,9 @@ pub struct RunReport {
     /// What the mask-rim stage did to each frame that came with instance maps
     /// ([`crate::mask_rims`]): instances whose mask lost a rim, pixels unlabelled.
     pub mask_rims: Vec<crate::mask_rims::MaskRimRecord>,
+    /// What burst fusion did ([`crate::burst`]): frames in, frames out, which were fused.
+    #[serde(default)]
+    pub burst: crate::burst::BurstRecord,
 }
 
 impl RunReport {

@@ -54,6 +54,10 @@ pub const INSIDE_M: f32 = 0.003;
 /// A solid's support is searched under its widest radius plus this.
 pub const SUPPORT_MARGIN_M: f32 = 0.02;
 
+/// The least inset of a fitted surface's samples towards the axis before the views check it
+/// ([`RevolveOptions::max_seen_through_fraction`]).
+pub const SEEN_THROUGH_INSET_M: f32 = 0.004;
+
 /// Confidence of a point on an accepted surface of revolution.
 pub const REVOLVE_CONFIDENCE: f32 = 0.9;
 
@@ -84,6 +88,11 @@ pub struct RevolveOptions {
     pub rim_inset_m: f32,
     /// The support under a solid is searched at most this far below its observed bottom.
     pub max_drop_m: f32,
+    /// A fit whose sampled surface, pulled in by 10% of its radius (at least
+    /// [`SEEN_THROUGH_INSET_M`]), the views see through at more than this share of its samples
+    /// is refused (1 = never): the sensor measured the table or the wall behind where the solid
+    /// would be. A flask's broad face fits a circle far wider than the flask.
+    pub max_seen_through_fraction: f32,
 }
 
 impl Default for RevolveOptions {
@@ -105,6 +114,7 @@ impl Default for RevolveOptions {
             min_top_arc_deg: 90.0,
             rim_inset_m: 0.00125,
             max_drop_m: 0.5,
+            max_seen_through_fraction: 1.0,
         }
     }
 }
@@ -124,6 +134,9 @@ pub struct Revolution {
     pub side_points: usize,
     /// Fitted to the top's rim (too little side observed): one radius for the whole height.
     pub from_top: bool,
+    /// The share of the sampled surface the views see through, when it was measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seen_through_fraction: Option<f32>,
 }
 
 impl Revolution {
@@ -311,6 +324,7 @@ pub fn fit_revolution(
         arc_deg: arc,
         side_points: side.len(),
         from_top: false,
+        seen_through_fraction: None,
     };
     if let Some(&(_, r)) = fit
         .radii
@@ -443,18 +457,69 @@ fn fit_top(
         arc_deg: arc,
         side_points: 0,
         from_top: true,
+        seen_through_fraction: None,
     })
 }
 
+/// Measures `fit`'s sampled surface (levelled `samples`, `back` to the world) against the views
+/// and records the share seen through in it; the record refusing it when the share is over the
+/// limit.
+fn check_seen_through(
+    fit: &mut Revolution,
+    id: u16,
+    samples: &[Point3<f32>],
+    back: &Rotation3<f32>,
+    seen_through: Option<SeenThrough<'_>>,
+    o: &RevolveOptions,
+) -> Option<RevolveRecord> {
+    let measure = seen_through?;
+    // Each sample pulled towards the axis by 10% of its radius (at least 4 mm): a fit true to a
+    // few millimetres puts its outline samples just outside the silhouette, where the views see
+    // the table behind; a solid far wider than the object (a flask's broad face fitted with one
+    // circle) stays outside it.
+    let axis = Vector2::new(fit.axis[0], fit.axis[1]);
+    let world: Vec<Point3<f32>> = samples
+        .iter()
+        .map(|p| {
+            let d = Vector2::new(p.x, p.y) - axis;
+            let r = d.norm();
+            let pulled = if r > 1e-6 {
+                axis + d * ((r - (0.1 * r).max(SEEN_THROUGH_INSET_M)).max(0.0) / r)
+            } else {
+                axis
+            };
+            back * Point3::new(pulled.x, pulled.y, p.z)
+        })
+        .collect();
+    let share = measure(&world);
+    fit.seen_through_fraction = Some(share);
+    (share > o.max_seen_through_fraction).then(|| RevolveRecord {
+        instance_id: id,
+        fit: None,
+        reason: format!(
+            "kept the completion: the views see through {:.0}% of the fitted solid (radius \
+             {:.3} m; limit {:.0}%)",
+            100.0 * share,
+            fit.radii[fit.radii.len() / 2].1,
+            100.0 * o.max_seen_through_fraction
+        ),
+    })
+}
+
+/// The share of a fitted surface's samples (world frame) that the views see through: what the
+/// revolve stage checks a fit against ([`RevolveOptions::max_seen_through_fraction`]).
+pub type SeenThrough<'a> = &'a (dyn Fn(&[Point3<f32>]) -> f32 + Sync);
+
 /// Replaces the generated points of the instances `ids` that are upright solids of revolution
 /// (see the module docs). `observed` gives the fit; `generated` holds what the completers and the
-/// support stage made. Returns the new generated cloud and a record per instance.
+/// support stage made; `seen_through` (when given) measures a fit against the views. Returns the
+/// new generated cloud and a record per instance.
 pub fn revolve_instances(
     observed: &PointCloud,
     generated: &PointCloud,
     ground: &Ground,
     ids: &BTreeSet<u16>,
-    cameras: &[Point3<f32>],
+    (cameras, seen_through): (&[Point3<f32>], Option<SeenThrough<'_>>),
     o: &RevolveOptions,
 ) -> (PointCloud, Vec<RevolveRecord>) {
     let mut records = Vec::new();
@@ -528,6 +593,11 @@ pub fn revolve_instances(
             Some(d[d.len() / 2].min(o.max_radius_m))
         };
         let (samples, rows) = sample_surface(&fit, bottom, top, &below, o);
+        let mut fit = fit;
+        if let Some(refused) = check_seen_through(&mut fit, id, &samples, &back, seen_through, o) {
+            records.push(refused);
+            continue;
+        }
         solids.push((id as u32, axis, rows));
         let n = samples.len();
         surface.append(&fitted_surface(
@@ -537,7 +607,7 @@ pub fn revolve_instances(
             &pts,
             idx,
             observed,
-            REVOLVE_CONFIDENCE,
+            (REVOLVE_CONFIDENCE, fit.residual_m),
         ));
         replaced.insert(id as u32);
         let dropped = gen_inst.iter().filter(|&&g| g == id as u32).count();
@@ -627,8 +697,9 @@ fn sample_surface(
 }
 
 /// A fitted surface's `samples` (levelled; `back` returns them to the world) as instance `id`'s
-/// points: the rules provenance, `confidence`, and the colour of the instance's nearest observed
-/// point (levelled `pts`, indices `idx` into `observed`).
+/// points: the rules provenance, `confidence`, the fit's residual `error_m` as each point's
+/// expected error, and the colour of the instance's nearest observed point (levelled `pts`,
+/// indices `idx` into `observed`).
 pub(crate) fn fitted_surface(
     samples: &[Point3<f32>],
     back: &Rotation3<f32>,
@@ -636,7 +707,7 @@ pub(crate) fn fitted_surface(
     pts: &[Point3<f32>],
     idx: &[usize],
     observed: &PointCloud,
-    confidence: f32,
+    (confidence, error_m): (f32, f32),
 ) -> PointCloud {
     let n = samples.len();
     PointCloud {
@@ -645,6 +716,7 @@ pub(crate) fn fitted_surface(
         instance: Some(vec![id as u32; n]),
         generated: Some(vec![Provenance::Rules.code(); n]),
         confidence: Some(vec![confidence; n]),
+        expected_error: Some(vec![error_m.max(0.0); n]),
         ..Default::default()
     }
 }
@@ -815,7 +887,7 @@ mod tests {
             &generated,
             &ground(&observed, &PointCloud::default()),
             &[1].into(),
-            &[],
+            (&[], None),
             &RevolveOptions::default(),
         );
         assert!(records[0].fit.is_some(), "{records:?}");
@@ -892,7 +964,7 @@ mod tests {
                 &generated,
                 &ground(&observed, fill),
                 &[1].into(),
-                &[],
+                (&[], None),
                 &RevolveOptions::default(),
             );
             assert!(records[0].fit.is_some(), "{records:?}");
@@ -960,7 +1032,7 @@ mod tests {
             &generated,
             &ground(&observed, &PointCloud::default()),
             &ids,
-            &[],
+            (&[], None),
             &RevolveOptions::default(),
         );
         assert!(records[0].fit.is_some(), "{records:?}");

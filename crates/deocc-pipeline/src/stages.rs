@@ -37,6 +37,13 @@ pub const STAGES: &[Stage] = &[
         progress: None,
     },
     Stage {
+        name: "burst",
+        what: "burst fusion: frames of a posed scene taken from one pose (a robot holding still) become one frame: per pixel the median of the frames that measured it, the mean colour",
+        files: &["deocc-pipeline/src/burst.rs"],
+        functions: &["fuse_bursts"],
+        progress: None,
+    },
+    Stage {
         name: "depth_fill",
         what: "depth the sensor did not measure, filled from a depth source put at the measured scale (measured pixels never change): a learned source by the caller before the run (`deocc run --depth-model`), the interpolation as the run's first stage when `fill_depth_max_gap_px` is set",
         files: &["deocc-pipeline/src/depth.rs"],
@@ -122,7 +129,7 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "fuse",
-        what: "alignment and fusion (each generated point carries the completer's probability as its confidence; optional median filter of a learned completer's depth; a thickness cap on a learned completer's far side, in metres and relative to the width of its silhouette's row (`completers.gldot.max_thickness_per_width`), and, looser, on the rules'; a confidence floor on a learned completer's revealed pixels (`completers.gldot.min_revealed_confidence`); a gate on the completer's own expected depth error, for a model with GL-DoT's error head (`completers.gldot.max_expected_error_m`, 3 cm), the rules completing the pixels it leaves out (`completers.gldot.uncertain_to_rules`, on); no far side where another frame saw the object's back (`skip_observed_far_side`, off); optional mirror check: points whose depth the mirrored crop's completion contradicts are left out)",
+        what: "alignment and fusion (each generated point carries the completer's probability as its confidence and its expected error in metres: GL-DoT's error head through the depth fit, or the link's stated `completers.NAME.stated_error_m`; optional median filter of a learned completer's depth; a thickness cap on a learned completer's far side, in metres and relative to the width of its silhouette's row (`completers.gldot.max_thickness_per_width`), and, looser, on the rules'; a confidence floor on a learned completer's revealed pixels (`completers.gldot.min_revealed_confidence`); a gate on the completer's own expected depth error, for a model with GL-DoT's error head (`completers.gldot.max_expected_error_m`, 3 cm), the rules completing the pixels it leaves out (`completers.gldot.uncertain_to_rules`, on); no far side where another frame saw the object's back (`skip_observed_far_side`, off); optional mirror check: points whose depth the mirrored crop's completion contradicts are left out)",
         files: &["deocc-pipeline/src/fuse.rs", "deocc-pipeline/src/complete.rs"],
         functions: &["fuse_completion", "median_within", "DepthSpread"],
         progress: Some(0.69),
@@ -143,7 +150,7 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "revolve",
-        what: "revolve: a completed object whose observed side is an upright solid of revolution (a can, a bottle) gets that surface, standing on the support below, instead of its completion (posed, z up; `revolve_upright`)",
+        what: "revolve: a completed object whose observed side is an upright solid of revolution (a can, a bottle) gets that surface, standing on the support below, instead of its completion, unless the views see through more than 6% of the fitted solid (a flask's broad face fits a circle far wider than the flask; posed, z up; `revolve_upright`)",
         files: &["deocc-pipeline/src/revolve.rs"],
         functions: &["revolve_instances", "fit_revolution"],
         progress: None,

@@ -179,8 +179,12 @@ impl Default for SupportOptions {
     }
 }
 
+/// The expected error of an extension's points, metres: the lowest observed ring continued
+/// straight down, as uncertain as that ring's own spread.
+pub const SUPPORT_ERROR_M: f32 = 0.005;
+
 /// New points extending the instances `ids` of `cloud` down to their support (see the module
-/// docs), with colour, instance and [`Provenance::Rules`].
+/// docs), with colour, instance, [`Provenance::Rules`] and [`SUPPORT_ERROR_M`].
 pub fn extend_to_support(
     cloud: &PointCloud,
     ids: &BTreeSet<u16>,
@@ -252,11 +256,13 @@ pub fn extend_to_support(
             }
         }
     }
+    let n = positions.len();
     PointCloud {
         positions,
         colors: Some(colors),
         instance: Some(instance),
         generated: Some(generated),
+        expected_error: Some(vec![SUPPORT_ERROR_M; n]),
         ..Default::default()
     }
 }

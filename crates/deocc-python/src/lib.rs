@@ -226,7 +226,8 @@ fn points_array<'py>(py: Python<'py>, pts: &[Point3<f32>]) -> PyResult<Bound<'py
 }
 
 /// A cloud as a dict of arrays: points (N, 3) float32, colors (N, 3) uint8, instance (N,)
-/// uint32, provenance (N,) uint8, confidence (N,) float32 (1 where the cloud carries none).
+/// uint32, provenance (N,) uint8, confidence (N,) float32 (1 where the cloud carries none),
+/// expected_error (N,) float32, metres (0 where the cloud carries none).
 fn cloud_dict<'py>(py: Python<'py>, c: &PointCloud) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let n = c.len();
@@ -247,6 +248,10 @@ fn cloud_dict<'py>(py: Python<'py>, c: &PointCloud) -> PyResult<Bound<'py, PyDic
     d.set_item(
         "confidence",
         PyArray1::from_vec(py, c.confidence.clone().unwrap_or_else(|| vec![1.0; n])),
+    )?;
+    d.set_item(
+        "expected_error",
+        PyArray1::from_vec(py, c.expected_error.clone().unwrap_or_else(|| vec![0.0; n])),
     )?;
     Ok(d)
 }

@@ -58,6 +58,11 @@ class Deocc(unittest.TestCase):
         self.assertTrue(np.all(res["confidence"][observed] == 1.0))
         self.assertTrue(np.all((res["confidence"] >= 0.0) & (res["confidence"] <= 1.0)))
         self.assertLess(res["confidence"][~observed].mean(), 1.0)
+        # Observed points are exact; generated ones carry how far off they may be, in metres.
+        self.assertTrue(np.array_equal(res["expected_error"], cli["expected_error"]))
+        self.assertTrue(np.all(res["expected_error"][observed] == 0.0))
+        self.assertGreater(res["expected_error"][~observed].mean(), 0.0)
+        self.assertLess(res["expected_error"].max(), 1.0)
         self.assertEqual(res["report"]["frames"], len(self.frames))
 
     def test_two_threads_overlap_and_python_runs_meanwhile(self):

@@ -182,6 +182,11 @@ pub struct GraspOptions {
     /// finger may not close where the object could be) and no finger or palm may touch another
     /// point's ball, while the contacts are scored on the points themselves. 0 = off.
     pub generated_error_m: f32,
+    /// The envelope from the cloud's own expected errors (its `expected_error`: GL-DoT's error
+    /// head, a fitted surface's residual, a completer's stated estimate): each point is grown by
+    /// this many times its expected error, in place of `generated_error_m` (0 = off; a cloud
+    /// without expected errors falls back to `generated_error_m`).
+    pub expected_error_scale: f32,
     /// Gravity's opposite in the cloud's frame (z up for the renderer's scenes).
     pub up: [f32; 3],
     /// Approaches with a larger upward component (moving up into the object) are not tried.
@@ -211,6 +216,7 @@ impl Default for GraspOptions {
             palm_clearance_m: 0.01,
             collision_margin_m: 0.005,
             generated_error_m: 0.0,
+            expected_error_scale: 0.0,
             up: [0.0, 0.0, 1.0],
             max_upward: 0.3,
             nms_distance_m: 0.03,
@@ -270,6 +276,13 @@ impl GraspOptions {
             " m",
         )?;
         real("generated_error_m", self.generated_error_m, 0.0, 0.05, " m")?;
+        real(
+            "expected_error_scale",
+            self.expected_error_scale,
+            0.0,
+            10.0,
+            "",
+        )?;
         real("max_upward", self.max_upward, -1.0, 1.0, "")?;
         real("nms_distance_m", self.nms_distance_m, 0.0, 1.0, " m")?;
         real("nms_angle_deg", self.nms_angle_deg, 0.0, 180.0, " degrees")?;
@@ -307,6 +320,38 @@ pub fn stated_errors(
             }
         })
         .collect()
+}
+
+/// Each point's expected error for the planner's envelope, or `None` when the envelope is off:
+/// the cloud's own expected errors (`expected`, metres) times
+/// [`GraspOptions::expected_error_scale`] when that is on and the cloud has them (observed
+/// points, provenance 0, count 0 whatever they carry), else [`stated_errors`] when
+/// [`GraspOptions::generated_error_m`] is on.
+pub fn envelope_errors(
+    provenance: Option<&[u8]>,
+    expected: Option<&[f32]>,
+    instance: Option<&[u32]>,
+    fitted: &[u32],
+    options: &GraspOptions,
+) -> Option<Vec<f32>> {
+    let provenance = provenance?;
+    match expected {
+        Some(e) if options.expected_error_scale > 0.0 => Some(
+            provenance
+                .iter()
+                .zip(e)
+                .map(|(&p, &x)| {
+                    if p == 0 {
+                        0.0
+                    } else {
+                        x * options.expected_error_scale
+                    }
+                })
+                .collect(),
+        ),
+        _ => (options.generated_error_m > 0.0)
+            .then(|| stated_errors(provenance, instance, fitted, options)),
+    }
 }
 
 /// Any unit vector perpendicular to `n`.

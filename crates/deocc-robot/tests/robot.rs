@@ -3,8 +3,8 @@
 use deocc_robot::grasp::frame;
 use deocc_robot::grasp_eval::{affordance_iou, precision, GraspOutcome, GroundTruthScene};
 use deocc_robot::place::{
-    build_map, build_map_seen_from, choose_placement, compare_maps, find_support_planes,
-    SupportPlane,
+    build_map, build_map_seen_from, build_map_with_errors, choose_placement, compare_maps,
+    find_support_planes, PlacePlanner, SupportPlane,
 };
 use deocc_robot::{
     AntipodalPlanner, Grasp, GraspPlanner, GripperConfig, PlaceOptions, UnseenSpace,
@@ -733,4 +733,110 @@ fn expected_errors_grow_the_target_the_fingers_must_clear() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("target") && e.contains("NaN"), "{e}");
+}
+
+/// The envelope's errors: the cloud's own, scaled, when `expected_error_scale` is on (observed
+/// points 0 whatever they carry); the stated `generated_error_m` otherwise, with fitted
+/// instances exact; nothing when both are off.
+#[test]
+fn the_envelope_reads_the_clouds_own_errors_when_asked() {
+    use deocc_robot::grasp::envelope_errors;
+    let provenance = [0u8, 1, 3, 1];
+    let expected = [0.5f32, 0.01, 0.02, 0.0];
+    let ids = [1u32, 1, 2, 3];
+    let mut o = deocc_robot::GraspOptions::default();
+    assert_eq!(
+        envelope_errors(Some(&provenance), Some(&expected), Some(&ids), &[], &o),
+        None
+    );
+    o.expected_error_scale = 2.0;
+    assert_eq!(
+        envelope_errors(Some(&provenance), Some(&expected), Some(&ids), &[], &o),
+        Some(vec![0.0, 0.02, 0.04, 0.0])
+    );
+    o.generated_error_m = 0.005;
+    // Without the cloud's errors, the stated one (instance 3 fitted: exact).
+    assert_eq!(
+        envelope_errors(Some(&provenance), None, Some(&ids), &[3], &o),
+        Some(vec![0.0, 0.005, 0.005, 0.0])
+    );
+    assert_eq!(
+        envelope_errors(None, Some(&expected), Some(&ids), &[], &o),
+        None
+    );
+    o.expected_error_scale = 11.0;
+    assert!(o
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .contains("expected_error_scale"));
+}
+
+/// The place planner's envelope: a generated point with 5 cm of expected error occupies the
+/// cells within 5 cm of it once `expected_error_scale` is on, and only then; errors that do not
+/// match the points are refused.
+#[test]
+fn uncertain_generated_points_block_the_cells_they_could_occupy() {
+    let (mut s, _) = lone_box();
+    // A lone generated point 4 cm above the table at (0.2, 0.2).
+    s.points.push(Point3::new(0.2, 0.2, 0.79));
+    let mut errors = vec![0.0f32; s.points.len()];
+    *errors.last_mut().unwrap() = 0.05;
+    let mut opts = PlaceOptions {
+        footprint: [0.04, 0.04],
+        height: 0.1,
+        dilation_m: 0.0,
+        expected_error_scale: 0.0,
+        ..Default::default()
+    };
+    assert_eq!(
+        PlaceOptions::default().expected_error_scale,
+        1.0,
+        "on by default"
+    );
+    let table = find_support_planes(&s.points, &opts).unwrap()[0];
+    let map = |opts: &PlaceOptions, e: Option<&[f32]>| {
+        build_map_with_errors(&s.points, e, &table, opts, UnseenSpace::AsPoints, None).unwrap()
+    };
+    let at = |m: &deocc_robot::place::PlaceMap, x: f32, y: f32| {
+        let cx = ((x - table.bounds[0]) / m.cell_m) as usize;
+        let cy = ((y - table.bounds[1]) / m.cell_m) as usize;
+        cy * m.nx + cx
+    };
+    let off = map(&opts, Some(&errors));
+    assert!(off.occupied[at(&off, 0.2, 0.2)]);
+    assert!(!off.occupied[at(&off, 0.24, 0.2)] && off.placeable[at(&off, 0.27, 0.2)]);
+    opts.expected_error_scale = 1.0;
+    let on = map(&opts, Some(&errors));
+    assert!(on.occupied[at(&on, 0.24, 0.2)] && on.occupied[at(&on, 0.2, 0.165)]);
+    assert!(
+        !on.occupied[at(&on, 0.24, 0.24)],
+        "beyond 5 cm on the diagonal"
+    );
+    assert!(!on.placeable[at(&on, 0.27, 0.2)]);
+    assert!(on.placeable[at(&on, 0.33, 0.2)]);
+    // Without errors the scale changes nothing.
+    assert_eq!(map(&opts, None).occupied, off.occupied);
+    let e = build_map_with_errors(
+        &s.points,
+        Some(&errors[..3]),
+        &table,
+        &opts,
+        UnseenSpace::AsPoints,
+        None,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("3 expected errors"), "{e}");
+    // The placer passes them on.
+    let placer = deocc_robot::GridPlacer {
+        options: opts.clone(),
+        unseen: UnseenSpace::AsPoints,
+        eye: None,
+    };
+    let robot = Point3::new(0.2, -1.0, 1.2);
+    let (maps, _) = placer
+        .plan_with_errors(&s.points, Some(&errors), &robot)
+        .unwrap();
+    assert_eq!(maps[0].occupied, on.occupied);
 }

@@ -1,4 +1,4 @@
-//! The sensor_msgs/PointCloud2 layout of a completed cloud: one row, little-endian, 28 bytes a
+//! The sensor_msgs/PointCloud2 layout of a completed cloud: one row, little-endian, 32 bytes a
 //! point, so a ROS node copies `data` into its message without repacking.
 //!
 //! | field      | offset | type    | meaning                                              |
@@ -8,10 +8,11 @@
 //! | instance   | 16     | UINT32  | instance id, 0 = background                          |
 //! | confidence | 20     | FLOAT32 | 1 observed; generated: the cloud's own, see [`confidence`] |
 //! | provenance | 24     | UINT8   | 0 observed, 1 model, 2 plane fill, 3 rules           |
+//! | expected_error | 28 | FLOAT32 | metres: 0 observed; generated: how far off it may be  |
 //!
 //! Decoding accepts any layout with FLOAT32 x, y, z (and optionally rgb, a UINT32 or UINT16
-//! instance, a UINT8 provenance and a FLOAT32 confidence) at any offsets, as other ROS nodes
-//! write them.
+//! instance, a UINT8 provenance, a FLOAT32 confidence and a FLOAT32 expected_error) at any
+//! offsets, as other ROS nodes write them.
 
 use deocc_geometry::{PointCloud, Provenance};
 use nalgebra::Point3;
@@ -19,7 +20,7 @@ use nalgebra::Point3;
 use crate::proto::{PointCloud2, PointField};
 use crate::FieldError;
 
-pub const POINT_STEP: u32 = 28;
+pub const POINT_STEP: u32 = 32;
 const INT8: u32 = 1;
 const UINT8: u32 = 2;
 const UINT16: u32 = 4;
@@ -57,11 +58,12 @@ pub fn fields() -> Vec<PointField> {
         field("instance", 16, UINT32),
         field("confidence", 20, FLOAT32),
         field("provenance", 24, UINT8),
+        field("expected_error", 28, FLOAT32),
     ]
 }
 
 /// `cloud` in deocc's layout (missing colours are grey, missing instances 0, missing
-/// provenance observed).
+/// provenance observed, missing expected errors 0).
 pub fn encode(cloud: &PointCloud) -> PointCloud2 {
     let n = cloud.len();
     let mut data = Vec::with_capacity(n * POINT_STEP as usize);
@@ -83,6 +85,8 @@ pub fn encode(cloud: &PointCloud) -> PointCloud2 {
         point[16..20].copy_from_slice(&id.to_le_bytes());
         point[20..24].copy_from_slice(&k.to_le_bytes());
         point[24] = g;
+        let e = cloud.expected_error.as_ref().map_or(0.0, |v| v[i]);
+        point[28..32].copy_from_slice(&e.to_le_bytes());
         data.extend_from_slice(&point);
     }
     PointCloud2 {
@@ -181,6 +185,7 @@ pub fn decode(msg: &PointCloud2, what: &str) -> Result<PointCloud, FieldError> {
     let instance = find("instance", &[UINT32, UINT16])?;
     let provenance = find("provenance", &[UINT8])?;
     let conf = find("confidence", &[FLOAT32])?;
+    let err = find("expected_error", &[FLOAT32])?;
     // One pass over the points, each a `step`-byte chunk.
     let rd4 = |p: &[u8], o: usize| [p[o], p[o + 1], p[o + 2], p[o + 3]];
     let mut positions = Vec::with_capacity(n);
@@ -188,6 +193,7 @@ pub fn decode(msg: &PointCloud2, what: &str) -> Result<PointCloud, FieldError> {
     let mut ids = instance.map(|_| Vec::with_capacity(n));
     let mut generated = provenance.map(|_| Vec::with_capacity(n));
     let mut confidence = conf.map(|_| Vec::with_capacity(n));
+    let mut expected_error = err.map(|_| Vec::with_capacity(n));
     for (i, p) in msg.data.chunks_exact(step.max(1)).take(n).enumerate() {
         let q = Point3::new(
             f32::from_le_bytes(rd4(p, xyz[0])),
@@ -225,6 +231,16 @@ pub fn decode(msg: &PointCloud2, what: &str) -> Result<PointCloud, FieldError> {
             }
             k.push(v);
         }
+        if let (Some(k), Some((o, _))) = (expected_error.as_mut(), err) {
+            let v = f32::from_le_bytes(rd4(p, o));
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad(
+                    &format!("{what}.data"),
+                    format!("point {i} has expected_error {v}: it must be finite and >= 0"),
+                ));
+            }
+            k.push(v);
+        }
     }
     let instance = ids;
     Ok(PointCloud {
@@ -233,6 +249,7 @@ pub fn decode(msg: &PointCloud2, what: &str) -> Result<PointCloud, FieldError> {
         instance,
         generated,
         confidence,
+        expected_error,
         ..Default::default()
     })
 }
@@ -250,6 +267,7 @@ mod tests {
             instance: Some((0..n).map(|i| (i % 5) as u32).collect()),
             generated: Some((0..n).map(|i| (i % 4) as u8).collect()),
             confidence: Some((0..n).map(|i| 1.0 - (i % 4) as f32 * 0.25).collect()),
+            expected_error: Some((0..n).map(|i| (i % 3) as f32 * 0.004).collect()),
             ..Default::default()
         }
     }
@@ -258,16 +276,17 @@ mod tests {
     fn a_cloud_survives_encoding_bit_for_bit() {
         let c = cloud(1000);
         let msg = encode(&c);
-        assert_eq!(msg.data.len(), 1000 * 28);
-        assert_eq!(msg.row_step, 28_000);
+        assert_eq!(msg.data.len(), 1000 * 32);
+        assert_eq!(msg.row_step, 32_000);
         let back = decode(&msg, "cloud").unwrap();
         assert_eq!(back.positions, c.positions);
         assert_eq!(back.colors, c.colors);
         assert_eq!(back.instance, c.instance);
         assert_eq!(back.generated, c.generated);
         assert_eq!(back.confidence, c.confidence);
+        assert_eq!(back.expected_error, c.expected_error);
         // The packed colour is where PCL reads it.
-        let rgb = u32::from_le_bytes(msg.data[28 + 12..28 + 16].try_into().unwrap());
+        let rgb = u32::from_le_bytes(msg.data[32 + 12..32 + 16].try_into().unwrap());
         assert_eq!(rgb, (1 << 16) | (7 << 8) | 255);
         assert_eq!(
             f32::from_le_bytes(msg.data[20..24].try_into().unwrap()),

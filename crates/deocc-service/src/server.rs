@@ -492,7 +492,11 @@ fn place(req: &PlaceRequest) -> Result<PlaceResponse, Status> {
         eye: None,
     };
     let (maps, best) = placer
-        .plan(&cloud.positions, &robot.into())
+        .plan_with_errors(
+            &cloud.positions,
+            cloud.expected_error.as_deref(),
+            &robot.into(),
+        )
         .map_err(|e| Status::invalid_argument(format!("cloud: {e}")))?;
     let maps_out = maps
         .iter()

@@ -289,7 +289,15 @@ impl RenderedScene {
 }
 
 pub fn render_full_scene(config: &SceneConfig, seed: u64) -> Result<RenderedScene> {
-    let scene = generate_scene(config, seed)?;
+    let mut scene = generate_scene(config, seed)?;
+    if config.burst > 1 {
+        // Each pose `burst` times in a row: views of their own, the sensor's noise drawn anew.
+        scene.cameras = scene
+            .cameras
+            .iter()
+            .flat_map(|c| std::iter::repeat_n(*c, config.burst))
+            .collect();
+    }
     let tris = SceneTriangles::new(&scene);
     let views: Vec<RenderedView> = (0..scene.cameras.len())
         .into_par_iter()

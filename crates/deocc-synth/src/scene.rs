@@ -84,6 +84,10 @@ pub struct SceneConfig {
     /// The depth sensor that measures every view ([`crate::sensor`]).
     pub sensor: crate::sensor_kind::SensorKind,
     pub user_meshes: Vec<UserMesh>,
+    /// Frames taken from each camera pose (a robot holding still): 1 = one. Each repeat is a
+    /// view of its own, measured by the sensor with its own noise, drop-outs and flying pixels;
+    /// the scene itself does not change.
+    pub burst: usize,
 }
 
 impl SceneConfig {
@@ -119,6 +123,7 @@ impl Default for SceneConfig {
             sensor_noise: false,
             sensor: crate::sensor_kind::SensorKind::Clean,
             user_meshes: Vec::new(),
+            burst: 1,
         }
     }
 }
