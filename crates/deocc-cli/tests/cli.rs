@@ -131,6 +131,99 @@ fn a_preset_is_measured_by_the_sensor_named() {
     );
 }
 
+/// `--burst K` renders K frames from each pose, each with its own sensor noise; `deocc run` fuses
+/// them into one frame (the report says which) with fewer pixels missing than any one of them;
+/// a command that measures frames one at a time refuses `--burst` instead of ignoring it.
+#[test]
+fn a_burst_is_rendered_and_fused_into_one_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    let o = deocc()
+        .args([
+            "synth",
+            "scenes",
+            "--preset",
+            "place-v1",
+            "--first",
+            "1",
+            "--sensor",
+            "structured-light",
+            "--burst",
+            "3",
+            "--out",
+        ])
+        .arg(&scenes)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene = scenes.join("scene_000000");
+    let holes = |d: &deocc_geometry::DepthMap| d.data().iter().filter(|&&z| z <= 0.0).count();
+    let frames: Vec<_> = (0..3)
+        .map(|k| {
+            deocc_io::images::read_depth_png(&scene.join(format!("depth/{k:06}.png"))).unwrap()
+        })
+        .collect();
+    assert_ne!(
+        frames[0].data(),
+        frames[1].data(),
+        "each frame its own noise"
+    );
+    let run = |name: &str, options: &str| -> serde_json::Value {
+        let out = dir.path().join(name);
+        let opts = dir.path().join(format!("{name}.json"));
+        std::fs::write(&opts, options).unwrap();
+        let o = deocc()
+            .arg("run")
+            .arg(&scene)
+            .args(["--completer", "rules", "--options"])
+            .arg(&opts)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+    };
+    let fused = run("fused", "{}");
+    assert_eq!(fused["burst"]["frames_in"], 3, "{}", fused["burst"]);
+    assert_eq!(fused["burst"]["frames_out"], 1);
+    assert_eq!(fused["burst"]["bursts"][0].as_array().unwrap().len(), 3);
+    let apart = run("apart", r#"{"burst": {"enabled": false}}"#);
+    assert_eq!(apart["burst"]["frames_out"], 3);
+    // The front end measures each frame's own noise: the fused frame's is lower.
+    let sigma =
+        |r: &serde_json::Value, k: usize| r["depth_clean"][k]["sigma_at_2m_mm"].as_f64().unwrap();
+    let one = (0..3).map(|k| sigma(&apart, k)).fold(f64::MAX, f64::min);
+    assert!(
+        sigma(&fused, 0) < 0.8 * one,
+        "{} mm fused, {one} mm alone",
+        sigma(&fused, 0)
+    );
+    assert!(
+        frames.iter().all(|d| holes(d) > 0),
+        "a structured-light frame has holes"
+    );
+    let o = deocc()
+        .args([
+            "eval",
+            "perception",
+            "--scenes",
+            "1",
+            "--burst",
+            "2",
+            "--json",
+        ])
+        .arg(dir.path().join("p.json"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--burst 2") && err.contains("perception"),
+        "{err}"
+    );
+}
+
 /// The shipped model, relative to the workspace.
 fn shipped_weights() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../weights/gldot-small")

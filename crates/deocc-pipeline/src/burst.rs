@@ -261,7 +261,7 @@ mod tests {
             ..Default::default()
         };
         fuse_bursts(&mut strict, &opts);
-        assert!(strict.frames[0].depth.data().iter().any(|&d| d == 0.0));
+        assert!(strict.frames[0].depth.data().contains(&0.0));
         for (posed, enabled) in [(false, true), (true, false)] {
             let mut kept = SceneInput {
                 frames: frames.clone(),
