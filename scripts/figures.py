@@ -45,6 +45,12 @@ def ci(stat, digits=3):
     return f"{stat['mean']:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
+def load_optional(name):
+    """A report not every checkout has measured yet: None when absent."""
+    path = os.path.join(ROOT, "bench", name)
+    return load(name) if os.path.exists(path) else None
+
+
 def row(rows, key, value):
     return next(r for r in rows if r[key] == value)
 
@@ -69,6 +75,23 @@ def table():
     shipped_place_sl = row(place_sl["rows"], "map", "gldot,rules@placing")
     rules_place_sl = row(place_sl["rows"], "map", "rules@placing")
     recall = objects["recall_vs_rules"]["gldot,rules"]
+    objects_sl = load_optional("objects-structured-light.json")
+    amodal_sensors = load_optional("amodal-sensors.json")
+    if objects_sl is None:
+        objects_sl_text = "not yet measured"
+    else:
+        r = objects_sl["recall_vs_rules"]["gldot,rules"]
+        objects_sl_text = (
+            f"{num(r['method'])} (paired difference {r['difference']:+.3f} "
+            f"[{r['ci95'][0]:+.3f}, {r['ci95'][1]:+.3f}]; rules {num(r['baseline'])})"
+        )
+    if amodal_sensors is None:
+        amodal_sensors_text = "not yet measured"
+    else:
+        amodal_sensors_text = (
+            f"{num(amodal_sensors['miou_model'])} on {amodal_sensors['pairs']} pairs measured by a "
+            f"sensor drawn per scene (`amodal-sensors.json`; rules {num(amodal_sensors['miou_rules'])})"
+        )
     lines = [
         "| benchmark (report) | figure | structured-light sensor (headline) | clean depth (upper reference) | strongest non-learned baseline, clean |",
         "|---|---|---|---|---|",
@@ -87,7 +110,7 @@ def table():
         f"{pct(rec['completeness_gain_whole_scene_segmenter'])} / "
         f"{pct(rec['completeness_gain_hidden_region_segmenter'])} | - |",
         f"| objects, bench-v1 {objects['scenes']} scenes, default segmenter (`objects.json`) | "
-        f"hidden-surface recall, shipped chain | not yet measured | "
+        f"hidden-surface recall, shipped chain | {objects_sl_text} | "
         f"{num(recall['method'])} (paired difference {recall['difference']:+.3f} "
         f"[{recall['ci95'][0]:+.3f}, {recall['ci95'][1]:+.3f}]) | rules {num(recall['baseline'])} |",
         f"| grasping, pickup-v1 {grasp['scenes']} scenes, {grasp['heavy_scenes']} heavily occluded "
@@ -104,7 +127,7 @@ def table():
         f"chain | {ci(shipped_place_sl['success'])} (rules {ci(rules_place_sl['success'])}) | "
         f"{ci(shipped_place['success'])} | rules {ci(rules_place['success'])} |",
         f"| amodal completion, {amodal['pairs']} {amodal['split']} pairs (`amodal.json`) | mask mIoU, "
-        f"GL-DoT | not yet measured | {num(amodal['miou_model'])} | rules {num(amodal['miou_rules'])} |",
+        f"GL-DoT | {amodal_sensors_text} | {num(amodal['miou_model'])} | rules {num(amodal['miou_rules'])} |",
     ]
     return "\n".join(lines) + "\n"
 

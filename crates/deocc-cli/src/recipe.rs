@@ -84,11 +84,11 @@ fn valid_name(n: &str) -> bool {
 }
 
 /// Keys whose values are paths, resolved against the data root.
-const PATH_KEYS: &[&str] = &["out", "data"];
+const PATH_KEYS: &[&str] = &["out", "data", "extra_data"];
 
 /// A recipe entry as command-line words: `{"steps": 100, "mean_head": true}` ->
 /// `--steps 100 --mean-head`. `false` leaves a switch out; a list is joined with commas; paths
-/// (`out`, `data`) are resolved against `root`. Keys in `skip` are left out.
+/// (`out`, `data`, `extra_data`) are resolved against `root`. Keys in `skip` are left out.
 pub fn to_words(entry: &Map<String, Value>, root: &Path, skip: &[&str]) -> Result<Vec<String>> {
     let mut words = Vec::new();
     for (key, value) in entry {
@@ -231,7 +231,8 @@ mod tests {
     fn entries_become_flags() {
         let e = entry(serde_json::json!({
             "steps": 100, "mean_head": true, "error_head": false,
-            "channel_loss_weights": [1, 0.25], "data": "pairs", "name": "main"
+            "channel_loss_weights": [1, 0.25], "data": "pairs", "name": "main",
+            "extra_data": "more"
         }));
         let words = to_words(&e, Path::new("/root"), &["name"]).unwrap();
         let line = words.join(" ");
@@ -240,6 +241,7 @@ mod tests {
         assert!(!line.contains("error-head"), "{line}");
         assert!(line.contains("--channel-loss-weights 1,0.25"), "{line}");
         assert!(line.contains("--data /root/pairs"), "{line}");
+        assert!(line.contains("--extra-data /root/more"), "{line}");
         assert!(!line.contains("main"), "{line}");
         let bad = entry(serde_json::json!({"steps": {"a": 1}}));
         assert!(to_words(&bad, Path::new("."), &[]).is_err());

@@ -78,6 +78,10 @@ pub struct PairsArgs {
     /// crop empty outside the image as the pipeline's is. Off keeps the splits as they were.
     #[arg(long)]
     edge_objects: bool,
+    /// Also put pickup-v2's target families that the other pools lack (faceted bottles,
+    /// flasks) on the tables. Off keeps the splits as they were.
+    #[arg(long)]
+    grasp_families: bool,
     /// The condition's depth as a sensor measures it (targets noise-free): pairs for a model
     /// that meets a real sensor; `random` draws a sensor per scene. Clean keeps the splits as
     /// they were.
@@ -182,6 +186,7 @@ fn pairs(a: PairsArgs) -> Result<()> {
     let config = PairConfig {
         resolution: a.resolution,
         edge_objects: a.edge_objects,
+        grasp_families: a.grasp_families,
         sensor: a.sensor.kind_without_burst("deocc synth pairs")?,
         ..PairConfig::default()
     };

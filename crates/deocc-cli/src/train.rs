@@ -26,6 +26,11 @@ pub struct TrainArgs {
     /// Folder with train-*.safetensors pair shards (from `deocc synth pairs --split train`).
     #[arg(long, default_value = "data/pairs")]
     data: PathBuf,
+    /// Also train on this folder's train-*.safetensors shards, drawn with --data's (e.g.
+    /// sensor-measured pairs beside clean ones: each shard is drawn alike, so the mix is the
+    /// folders' shard counts).
+    #[arg(long)]
+    extra_data: Option<PathBuf>,
     /// Model preset: tiny, small (shipped), large.
     #[arg(long, default_value = "small")]
     preset: String,
@@ -106,6 +111,7 @@ pub struct TrainArgs {
 /// The flags a recipe sets itself.
 const RECIPE_CONFLICTS: &[&str] = &[
     "data",
+    "extra_data",
     "preset",
     "mask_prior",
     "steps",
@@ -169,6 +175,17 @@ pub fn run(a: TrainArgs) -> Result<()> {
         .with_context(|| format!("{}: cannot list training pairs", a.data.display()))?;
     if shards.is_empty() {
         bail!("{}: no train-*.safetensors shards; make them with `deocc synth pairs --split train --out {}`", a.data.display(), a.data.display());
+    }
+    if let Some(extra) = &a.extra_data {
+        let more = deocc_model::data::shards(extra, "train")
+            .with_context(|| format!("{}: cannot list training pairs", extra.display()))?;
+        if more.is_empty() {
+            bail!(
+                "--extra-data {}: no train-*.safetensors shards",
+                extra.display()
+            );
+        }
+        shards.extend(more);
     }
     if let Some(n) = a.limit_shards {
         shards.truncate(n.max(1));

@@ -42,6 +42,12 @@ fn the_ci_recipe_trains_resumes_and_exports() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(tmp.path().join("pairs/train-manifest.json").exists());
+    // The second pair set, measured by a sensor drawn per scene, feeds the second phase.
+    let sensors = std::fs::read_to_string(tmp.path().join("pairs-sensors/train-manifest.json"))
+        .expect("the sensor-measured pairs are made");
+    assert!(sensors.contains("\"sensor\": \"random\""), "{sensors}");
+    assert!(sensors.contains("\"grasp_families\": true"), "{sensors}");
+    assert!(err.contains("--extra-data"), "{err}");
     let main = run.join("01-main");
     let l = losses(&main);
     assert_eq!(l.len(), 150, "one loss line a step");
@@ -64,6 +70,7 @@ fn the_ci_recipe_trains_resumes_and_exports() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(err.contains("data 1: made already"), "{err}");
+    assert!(err.contains("data 2: made already"), "{err}");
     assert!(err.contains("finished already"), "{err}");
     assert_eq!(losses(&main).len(), 150, "resumed, not retrained");
 

@@ -68,6 +68,11 @@ pub struct PairConfig {
     /// switch). Under `random` every scene gets its own sensor and colour camera.
     #[serde(default)]
     pub sensor: crate::sensor::SensorKind,
+    /// Add pickup-v2's target families the other pools lack (faceted bottles, flasks:
+    /// [`crate::shapes::Category::TABLETOP_GRASP`]) to the split's scenes. Off by default,
+    /// which keeps the existing splits as they were.
+    #[serde(default)]
+    pub grasp_families: bool,
 }
 
 impl PairConfig {
@@ -93,6 +98,7 @@ impl Default for PairConfig {
             edge_objects: false,
             sensor_noise: false,
             sensor: crate::sensor::SensorKind::Clean,
+            grasp_families: false,
         }
     }
 }
@@ -400,6 +406,7 @@ impl Split {
 pub fn split_scene_pairs(split: Split, index: u64, config: &PairConfig) -> Result<PairSet> {
     let mut sc = split.scene_config();
     sc.views = config.views_per_scene;
+    sc.grasp_families = config.grasp_families;
     let scene = generate_scene(&sc, split.seed_base() + index)?;
     // 256 ids per scene: scenes have far fewer objects.
     scene_pairs(&scene, config, (index as u32) << 8)

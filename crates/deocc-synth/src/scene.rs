@@ -76,6 +76,10 @@ pub struct SceneConfig {
     /// T and U shapes, frames, stools, small tables) to the table-top pool. Off in the
     /// benchmarks (bench-v1's scenes do not change), on in the training-pair splits.
     pub extra_families: bool,
+    /// Add pickup-v2's target families the other pools lack ([`Category::TABLETOP_GRASP`]:
+    /// faceted bottles, flasks) to the table-top pool. Off everywhere but the training pairs
+    /// made with `PairConfig::grasp_families`.
+    pub grasp_families: bool,
     /// Ground-truth surface samples per square metre.
     pub gt_points_per_m2: f32,
     /// The project's first sensor model ([`crate::sensor_kind::SensorKind::Gaussian`]); kept so that
@@ -119,6 +123,7 @@ impl Default for SceneConfig {
             shelf_probability: 0.4,
             held_out_shapes: false,
             extra_families: false,
+            grasp_families: false,
             gt_points_per_m2: 10_000.0,
             sensor_noise: false,
             sensor: crate::sensor_kind::SensorKind::Clean,
@@ -398,6 +403,9 @@ pub fn indoor_scene(config: &SceneConfig, seed: u64) -> Result<Scene, SynthError
     let mut pool: Vec<Category> = Category::TABLETOP_TRAIN.to_vec();
     if config.extra_families {
         pool.extend(Category::TABLETOP_EXTRA);
+    }
+    if config.grasp_families {
+        pool.extend(Category::TABLETOP_GRASP);
     }
     if config.held_out_shapes {
         pool.extend(Category::TABLETOP_HELD_OUT);

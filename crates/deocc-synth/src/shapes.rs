@@ -104,6 +104,10 @@ impl Category {
         Category::MiniTable,
     ];
 
+    /// pickup-v2's target families the other pools lack (faceted bottles, flasks); in the
+    /// training-pair splits made with `PairConfig::grasp_families`.
+    pub const TABLETOP_GRASP: [Category; 2] = [Category::FacetedBottle, Category::Flask];
+
     /// Every category, in declaration order (the order of the `u8` codes in pair shards).
     pub const ALL: [Category; 22] = [
         Category::Floor,

@@ -680,3 +680,28 @@ fn pickup_v2_scenes_have_their_kind_of_target_mostly_hidden() {
         assert!(x.min(y) <= MAX_V2_NARROW_SIDE_M + 0.01);
     }
 }
+
+/// `grasp_families` puts pickup-v2's faceted bottles and flasks on the tables (the training
+/// pairs for real shapes); without it they never appear, so the existing splits stay as they were.
+#[test]
+fn grasp_families_bring_faceted_bottles_and_flasks() {
+    use deocc_synth::shapes::Category;
+    let count = |grasp_families: bool| {
+        let cfg = SceneConfig {
+            grasp_families,
+            tabletop_objects_min: 8,
+            tabletop_objects_max: 8,
+            ..small_config()
+        };
+        (0..12u64)
+            .flat_map(|seed| generate_scene(&cfg, 500 + seed).unwrap().objects)
+            .filter(|o| Category::TABLETOP_GRASP.contains(&o.category))
+            .count()
+    };
+    assert_eq!(count(false), 0);
+    assert!(
+        count(true) >= 4,
+        "{} faceted bottles and flasks",
+        count(true)
+    );
+}
