@@ -133,21 +133,6 @@ fn answer(
     Ok(())
 }
 
-/// Reads placer settings from a JSON file, or the defaults.
-pub fn place_options(path: Option<&Path>) -> Result<PlaceOptions> {
-    let o: PlaceOptions = match path {
-        Some(p) => {
-            let text =
-                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            deocc_io::cameras::options_from_json(&text)
-                .map_err(|e| anyhow::anyhow!("{}: place options: {e}", p.display()))?
-        }
-        None => PlaceOptions::default(),
-    };
-    o.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
-    Ok(o)
-}
-
 /// Reads planner settings from a JSON file, or the defaults.
 pub fn grasp_options(path: Option<&Path>) -> Result<GraspOptions> {
     let o: GraspOptions = match path {

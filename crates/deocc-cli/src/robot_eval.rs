@@ -141,7 +141,7 @@ pub struct PlaceArgs {
 
 pub fn place(a: PlaceArgs) -> Result<()> {
     let opts = a.pipeline.options()?;
-    let planner = crate::robot::place_options(a.place_options.as_deref())?;
+    let planner = place_options(a.place_options.as_deref())?;
     let chains = place_chains(a.weights.as_ref(), &opts)?;
     let mut preset = deocc_synth::dataset::preset(&a.preset)?;
     a.sensor.apply(&mut preset)?;
@@ -170,4 +170,20 @@ pub fn place(a: PlaceArgs) -> Result<()> {
     pb.finish_and_clear();
     crate::report::write_report(&a.json, &report)?;
     Ok(())
+}
+
+/// Reads placer settings from a JSON file, or the defaults.
+fn place_options(path: Option<&std::path::Path>) -> Result<deocc_robot::PlaceOptions> {
+    let o: deocc_robot::PlaceOptions = match path {
+        Some(p) => {
+            let text = anyhow::Context::with_context(std::fs::read_to_string(p), || {
+                format!("reading {}", p.display())
+            })?;
+            deocc_io::cameras::options_from_json(&text)
+                .map_err(|e| anyhow::anyhow!("{}: place options: {e}", p.display()))?
+        }
+        None => deocc_robot::PlaceOptions::default(),
+    };
+    o.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(o)
 }

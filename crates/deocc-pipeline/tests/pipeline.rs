@@ -1455,9 +1455,10 @@ fn a_patch_for_a_link_the_chain_lacks_is_refused() {
     }
 }
 
-/// The front half asks the observer before each frame's depth front end: one that says stop
-/// there ends `run_in_memory` with `Cancelled` at `depth_clean`, before any run stage; one that
-/// lets it go sees `depth_clean` once per frame, then the run's stages.
+/// The front half asks the observer before its burst fusion and before each frame's depth front
+/// end: one that says stop there ends `run_in_memory` with `Cancelled` at that stage, before any
+/// run stage; one that lets it go sees `burst`, `depth_clean` once per frame, then the run's
+/// stages.
 #[test]
 fn an_observer_can_stop_the_front_half() {
     use std::sync::Mutex;
@@ -1484,11 +1485,20 @@ fn an_observer_can_stop_the_front_half() {
             stage: "depth_clean"
         }
     ));
-    assert_eq!(stop.0.into_inner().unwrap(), vec!["depth_clean"]);
+    assert_eq!(stop.0.into_inner().unwrap(), vec!["burst", "depth_clean"]);
+    let early = Record(Mutex::new(Vec::new()), Some("burst"));
+    let e = deocc_pipeline::run_in_memory(scene.clone(), &chain, &opts, &segmenter, false, &early)
+        .err()
+        .unwrap();
+    assert!(matches!(
+        e,
+        deocc_pipeline::PipelineError::Cancelled { stage: "burst" }
+    ));
     let all = Record(Mutex::new(Vec::new()), None);
     deocc_pipeline::run_in_memory(scene, &chain, &opts, &segmenter, false, &all).unwrap();
     let seen = all.0.into_inner().unwrap();
+    assert_eq!(seen[0], "burst");
     assert_eq!(seen.iter().filter(|s| **s == "depth_clean").count(), frames);
-    assert!(seen[..frames].iter().all(|s| *s == "depth_clean"));
-    assert!(seen.len() > frames);
+    assert!(seen[1..=frames].iter().all(|s| *s == "depth_clean"));
+    assert!(seen.len() > frames + 1);
 }
