@@ -22,7 +22,7 @@ use clap::{Args, FromArgMatches};
 use serde::Deserialize;
 use serde_json::{Map, Value};
 
-/// A recipe file (see the module documentation; `configs/gldot-small.json` is the shipped
+/// A recipe file (see the module documentation; `configs/gldot-small-sensors.json` is the shipped
 /// model's).
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -412,8 +412,10 @@ pub fn place(a: PlaceArgs) -> Result<()> {
         (Some(Unseen::Occupied), _) => UnseenSpace::Occupied,
         (Some(Unseen::AsPoints), _) | (None, false) => UnseenSpace::AsPoints,
     };
-    // Thin far sides: what a placement map needs (PipelineOptions::for_placing).
-    let (cloud, cameras, _, _) = completed(&a.scene, &PipelineOptions::default().for_placing())?;
+    // The pipeline's defaults, not `PipelineOptions::for_placing`'s thin far sides: under the
+    // structured-light model those doubled the false-placeable share and lost placements behind
+    // the clutter (docs/decisions.md, "deocc place keeps the far sides").
+    let (cloud, cameras, _, _) = completed(&a.scene, &PipelineOptions::default())?;
     let (camera, frames) = (cameras[0].1, cameras.len());
     let robot = nalgebra::Point3::from(camera.world_from_camera.translation.vector);
     let placer = GridPlacer {

@@ -82,9 +82,8 @@ fn grasp_chains(
 }
 
 /// The completer rows of the placing benchmark: the rules completer and the shipped chain, each
-/// at the pipeline's options and with the placing settings on top
-/// ([`deocc_pipeline::PipelineOptions::for_placing`], what `deocc place` runs; rows
-/// [`deocc_eval::PLACING_SUFFIX`]).
+/// at the pipeline's options (what `deocc place` runs) and with the thin far sides of
+/// [`deocc_pipeline::PipelineOptions::for_placing`] on top (rows [`deocc_eval::PLACING_SUFFIX`]).
 fn place_chains(
     weights: Option<&PathBuf>,
     opts: &deocc_pipeline::PipelineOptions,

@@ -15,7 +15,7 @@ pub struct TrainArgs {
     /// Run directory: created if new, resumed if it holds a checkpoint.
     #[arg(long)]
     pub run: PathBuf,
-    /// A whole recipe (configs/gldot-small.json is the shipped model's): make its training
+    /// A whole recipe (configs/gldot-small-sensors.json is the shipped model's): make its training
     /// pairs, train its phases in order and export, resumable; the run directory holds one
     /// folder per phase and `export/`. The recipe's entries are this command's flags.
     #[arg(long, conflicts_with_all = RECIPE_CONFLICTS)]

@@ -7,7 +7,7 @@
 //! `r` generated within 1 cm of the top; `x`/`y` observed/generated 1-3 cm off; `^` above, `_`
 //! below).
 //!
-//! `cargo run --release -p deocc-eval --example place_support -- [SENSOR] [SCENES]`
+//! `[TUNING=1] cargo run --release -p deocc-eval --example place_support -- [SENSOR] [SCENES]`
 
 use deocc_completion::CompleterChain;
 
@@ -21,6 +21,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     deocc_eval::with_sensor(&mut preset, kind);
     let opts = deocc_pipeline::PipelineOptions::default();
     let rules = CompleterChain::single(deocc_completion::rules::RulesCompleter::default());
+    // TUNING=1: the tuning scenes (`deocc eval place --tuning`), not the test split.
+    if std::env::var_os("TUNING").is_some() {
+        let first = preset.seeds[0] + 50_000;
+        preset.seeds = (first..first + scenes as u64).collect();
+    }
     for &seed in &preset.seeds[..scenes] {
         let r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         let table = r.scene.table.unwrap();

@@ -306,7 +306,8 @@ pub fn place_benchmark(
                 &plane,
                 &popts,
                 UnseenSpace::AsPoints,
-                None,
+                // One view: its camera's sight lines give the hidden side's envelope.
+                Some(&robot),
             )
             .map_err(err)?;
             panel(&m, name);

@@ -7,8 +7,10 @@
 //! 2. the depth front end cleans every frame in units of its own noise ([`crate::depth_clean`]);
 //! 3. the rims of given instance masks whose depth belongs to something else lose their
 //!    instance ([`crate::mask_rims`]);
-//! 4. frames without poses are registered ([`crate::registration::register_unposed`]);
-//! 5. frames without instance maps (every frame with `segment`) are segmented
+//! 4. the holes of given instance masks take their own instance's depth
+//!    ([`crate::mask_holes`]);
+//! 5. frames without poses are registered ([`crate::registration::register_unposed`]);
+//! 6. frames without instance maps (every frame with `segment`) are segmented
 //!    ([`crate::instances::ensure_instances`]).
 //!
 //! Then [`crate::run_prepared`] runs the pipeline and puts what the front half did into the
@@ -18,6 +20,7 @@ use deocc_io::scene::SceneInput;
 
 use crate::depth::{DepthFillOptions, DepthFillReport, DepthSource};
 use crate::depth_clean::{clean_depth, DepthCleanRecord};
+use crate::mask_holes::{fill_mask_holes, MaskHoleRecord};
 use crate::mask_rims::{unlabel_mask_rims, MaskRimRecord};
 use crate::segment::Segmenter;
 use crate::{PipelineError, PipelineOptions, Registration};
@@ -31,6 +34,8 @@ pub struct Prepared {
     pub depth_clean: Vec<DepthCleanRecord>,
     /// One record per frame (all zero for a frame without a given map, or with `segment`).
     pub mask_rims: Vec<MaskRimRecord>,
+    /// One record per frame, as `mask_rims`.
+    pub mask_holes: Vec<MaskHoleRecord>,
     /// Instances the segmenter found across views (0 when every frame came with masks).
     pub segmented: usize,
 }
@@ -80,6 +85,11 @@ pub fn prepare_observed(
         .iter_mut()
         .map(|f| unlabel_mask_rims(f, &opts.mask_rims))
         .collect();
+    let mask_holes = scene
+        .frames
+        .iter_mut()
+        .map(|f| fill_mask_holes(f, &opts.mask_holes))
+        .collect();
     let registration = crate::registration::register_unposed(scene)?;
     let segmented = crate::instances::ensure_instances(scene, segmenter)?;
     Ok(Prepared {
@@ -88,6 +98,7 @@ pub fn prepare_observed(
         depth_fill,
         depth_clean,
         mask_rims,
+        mask_holes,
         segmented,
     })
 }

@@ -23,6 +23,7 @@ pub mod fuse;
 pub mod gate;
 pub mod ground_truth;
 pub mod instances;
+pub mod mask_holes;
 pub mod mask_rims;
 pub mod matching;
 pub mod occlusion;
@@ -136,6 +137,7 @@ pub fn run_prepared(
     out.report.depth_clean = prepared.depth_clean;
     out.report.burst = prepared.burst;
     out.report.mask_rims = prepared.mask_rims;
+    out.report.mask_holes = prepared.mask_holes;
     Ok(out)
 }
 
@@ -662,6 +664,7 @@ fn make_report(
         depth_fill: Vec::new(),
         depth_clean: Vec::new(),
         mask_rims: Vec::new(),
+        mask_holes: Vec::new(),
         burst: Default::default(),
     }
 }

@@ -157,7 +157,7 @@ pub fn unlabel_mask_rims(frame: &mut Frame, opts: &MaskRimOptions) -> MaskRimRec
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use deocc_geometry::camera::{Camera, Intrinsics};
     use deocc_geometry::DepthMap;
@@ -183,6 +183,11 @@ mod tests {
             d[40 * w + u] = 0.0;
             d[41 * w + u] = 0.0;
         }
+        masked_frame(w, h, d, ids)
+    }
+
+    /// A `w x h` frame at the origin (60 degrees across) with depth `d` and instance map `ids`.
+    pub(crate) fn masked_frame(w: usize, h: usize, d: Vec<f32>, ids: Vec<u16>) -> Frame {
         Frame {
             name: "f".into(),
             camera: Camera {

@@ -120,6 +120,9 @@ pub struct PipelineOptions {
     /// Masks meet depth ([`crate::mask_rims`]): the rim of a given instance mask whose depth
     /// belongs to something else (the wall behind, the occluder in front) loses its instance.
     pub mask_rims: crate::mask_rims::MaskRimOptions,
+    /// A given mask's holes take its own depth ([`crate::mask_holes`]): a mask pixel the sensor
+    /// did not measure is filled from the instance's own measured pixels around it.
+    pub mask_holes: crate::mask_holes::MaskHoleOptions,
 }
 
 /// The quality gate's default limits (see the fields of [`PipelineOptions`]): off. On 20
@@ -176,6 +179,7 @@ impl Default for PipelineOptions {
             burst: crate::burst::BurstOptions::default(),
             depth_clean: crate::depth_clean::DepthCleanOptions::default(),
             mask_rims: crate::mask_rims::MaskRimOptions::default(),
+            mask_holes: crate::mask_holes::MaskHoleOptions::default(),
         }
     }
 }
@@ -197,12 +201,13 @@ pub const PLACING_MAX_THICKNESS_PER_WIDTH: f32 = 0.35;
 pub const PLACING_MAX_THICKNESS_M: f32 = 0.03;
 
 impl PipelineOptions {
-    /// These options with the settings for planning placements on the completed cloud (`deocc
-    /// place`): every completer's far side thin ([`PLACING_MAX_THICKNESS_PER_WIDTH`],
-    /// [`PLACING_MAX_THICKNESS_M`]). A placement map needs where things stand, not how deep they
-    /// are: a far side put too deep blocks a footprint's worth of free table around it, one put
-    /// too shallow costs only the strip behind the object. Chosen on place-v1 tuning scenes
-    /// (docs/decisions.md); for grasping, where the planner needs the back, the defaults stay.
+    /// These options with every completer's far side thin ([`PLACING_MAX_THICKNESS_PER_WIDTH`],
+    /// [`PLACING_MAX_THICKNESS_M`]): a far side put too deep blocks a footprint's worth of free
+    /// table around it, one put too shallow costs the strip behind the object. On clean depth
+    /// it gives place-v1's maps more true free table; under the structured-light model it
+    /// doubles their false free space and loses placements behind the clutter, so `deocc place`
+    /// no longer uses it (docs/decisions.md, "deocc place keeps the far sides"). An option for
+    /// clean depth.
     pub fn for_placing(mut self) -> Self {
         let thin = FusePatch {
             max_thickness_m: Some(PLACING_MAX_THICKNESS_M),
@@ -265,6 +270,7 @@ impl PipelineOptions {
         self.burst.validate()?;
         self.depth_clean.validate()?;
         self.mask_rims.validate()?;
+        self.mask_holes.validate()?;
         if self.fill_depth_max_gap_px > 64 {
             return Err(bad(
                 "fill_depth_max_gap_px",

@@ -129,6 +129,11 @@ pub const OPTIONS: &[OptionHelp] = &[
     row!("mask_rims.connect_sigmas", f(0.5, 50.0), "neighbours within this many sigmas (plus 2% of depth) are one surface"),
     row!("mask_rims.min_piece_px", i(0, 10_000), "a mask's depth pieces smaller than this are rims, pixels"),
     row!("mask_rims.rim_fraction", f(0.0, 1.0), "a piece with this share of its pixels on the mask's border is a rim"),
+    row!("mask_holes.enabled", Range::Bool, "a given mask's pixels without depth take the depth of its own measured pixels around them"),
+    row!("mask_holes.window_px", i(1, 64), "the window the mask-hole fit is made in first, pixels each way"),
+    row!("mask_holes.max_window_px", i(1, 64), "the wider window tried when the first has too few samples, pixels each way"),
+    row!("mask_holes.min_samples", i(3, 10_000), "measured pixels of the instance a mask-hole fit needs"),
+    row!("mask_holes.max_instance_fraction", f(0.0, 1.0), "instances covering more of the frame (a table top, a wall) keep their holes"),
 ];
 
 /// The links' own policies, as the defaults of the `completers.NAME.*` rows.

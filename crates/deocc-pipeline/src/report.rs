@@ -157,6 +157,10 @@ pub struct RunReport {
     /// What the mask-rim stage did to each frame that came with instance maps
     /// ([`crate::mask_rims`]): instances whose mask lost a rim, pixels unlabelled.
     pub mask_rims: Vec<crate::mask_rims::MaskRimRecord>,
+    /// What the mask-hole stage did to each frame that came with instance maps
+    /// ([`crate::mask_holes`]): mask pixels without depth, and those filled.
+    #[serde(default)]
+    pub mask_holes: Vec<crate::mask_holes::MaskHoleRecord>,
     /// What burst fusion did ([`crate::burst`]): frames in, frames out, which were fused.
     #[serde(default)]
     pub burst: crate::burst::BurstRecord,

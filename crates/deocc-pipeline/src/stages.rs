@@ -65,6 +65,13 @@ pub const STAGES: &[Stage] = &[
         progress: None,
     },
     Stage {
+        name: "mask_holes",
+        what: "a given mask's holes take its own depth: a mask pixel the sensor did not measure (a shadow, a grazing drop-out) is read off the inverse-depth plane through its instance's measured pixels around it, within their depth range",
+        files: &["deocc-pipeline/src/mask_holes.rs"],
+        functions: &["fill_mask_holes"],
+        progress: None,
+    },
+    Stage {
         name: "registration",
         what: "register pose-free frames (explicit)",
         files: &["deocc-pipeline/src/registration.rs"],
@@ -87,7 +94,7 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "front",
-        what: "the front half in one function for every caller: learned depth fill, depth front end, mask rims, registration, instances (`prepare_observed`: the observer may stop it before each frame's depth front end)",
+        what: "the front half in one function for every caller: learned depth fill, depth front end, mask rims, mask holes, registration, instances (`prepare_observed`: the observer may stop it before each frame's depth front end)",
         files: &["deocc-pipeline/src/front.rs", "deocc-pipeline/src/lib.rs"],
         functions: &["prepare", "prepare_observed", "run_prepared"],
         progress: None,

@@ -566,8 +566,9 @@ fn target_at(
     deocc_robot::target::instance_at(&cloud, &view, pick).map_err(value_error)
 }
 
-/// The pipeline options for planning placements (`PipelineOptions::for_placing`: every
-/// completer's far side thin), as a dict for `run(frames, options=...)`; `deocc place` uses them.
+/// The pipeline options with every completer's far side thin (`PipelineOptions::for_placing`),
+/// as a dict for `run(frames, options=...)`: more free table on clean depth, more false free
+/// space under a real sensor, where `deocc place` keeps the defaults (docs/decisions.md).
 #[pyfunction]
 fn placing_options<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
     let text = serde_json::to_string(&deocc_pipeline::PipelineOptions::default().for_placing())

@@ -88,6 +88,11 @@ pub struct PlaceOptions {
     /// shipped chain's false-placeable share 0.052 -> 0.042 at 1, 0.035 at 2, its IoU 0.588 ->
     /// 0.565 -> 0.515, success 0.948 throughout (docs/decisions.md).
     pub expected_error_scale: f32,
+    /// The envelope on the hidden side: seen from one camera (the map's `eye`), a generated
+    /// point (expected error above 0) that occupies its cell also occupies the cells up to this
+    /// far behind it along the sight line, levelled: the side no view sees is where a completion
+    /// falls short (0 = off; no eye, no growth: several views have no one hidden side).
+    pub hidden_side_m: f32,
 }
 
 impl Default for PlaceOptions {
@@ -110,6 +115,7 @@ impl Default for PlaceOptions {
             clearance_cap_m: 0.1,
             distance_weight: 0.5,
             expected_error_scale: 1.0,
+            hidden_side_m: 0.0,
         }
     }
 }
@@ -149,6 +155,7 @@ impl PlaceOptions {
             "",
         )?;
         real("distance_weight", self.distance_weight, 0.0, 100.0, "")?;
+        real("hidden_side_m", self.hidden_side_m, 0.0, 0.5, " m")?;
         Ok(())
     }
 
@@ -503,6 +510,20 @@ pub fn build_map_with_errors(
                     }
                 }
             }
+            // The hidden side: on along the sight line, away from the camera.
+            let generated = errors.is_some_and(|e| e[k] > 0.0);
+            if let (Some(e), true) = (eye, generated && opts.hidden_side_m > 0.0) {
+                let away = Vector3::new(p.x - e.x, p.y - e.y, 0.0);
+                if let Some(d) = away.try_normalize(1e-6) {
+                    let steps = (opts.hidden_side_m / (0.5 * cell)).ceil() as usize;
+                    for s in 1..=steps {
+                        let t = (s as f32 * 0.5 * cell).min(opts.hidden_side_m);
+                        if let Some(j) = cell_of(p.x + d.x * t, p.y + d.y * t) {
+                            occupied[j] = true;
+                        }
+                    }
+                }
+            }
         }
     }
     let k = (opts.support_closing_m / cell).round() as isize;
@@ -668,8 +689,8 @@ pub struct GridPlacer {
     pub options: PlaceOptions,
     pub unseen: UnseenSpace,
     /// The camera the points were seen from, when they come from one (see
-    /// [`build_map_seen_from`]); matters only for the observed maps (unseen space free or
-    /// occupied).
+    /// [`build_map_seen_from`]): for the observed maps (unseen space free or occupied), and for
+    /// the hidden side's envelope ([`PlaceOptions::hidden_side_m`]).
     pub eye: Option<Point3<f32>>,
 }
 

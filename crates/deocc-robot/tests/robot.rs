@@ -840,3 +840,64 @@ fn uncertain_generated_points_block_the_cells_they_could_occupy() {
         .unwrap();
     assert_eq!(maps[0].occupied, on.occupied);
 }
+
+/// The hidden side's envelope: seen from one camera, a generated point occupies the cells behind
+/// it along the sight line up to `hidden_side_m`, not the cells before it or beside it; an
+/// observed point (no error) and a map without an eye grow nothing.
+#[test]
+fn generated_points_block_their_hidden_side_along_the_sight_line() {
+    let (mut s, _) = lone_box();
+    // A generated point 4 cm above the table at (0.2, 0.2) and an observed one at (-0.2, 0.2).
+    s.points.push(Point3::new(0.2, 0.2, 0.79));
+    s.points.push(Point3::new(-0.2, 0.2, 0.79));
+    let mut errors = vec![0.0f32; s.points.len()];
+    errors[s.points.len() - 2] = 0.005;
+    let mut opts = PlaceOptions {
+        footprint: [0.04, 0.04],
+        height: 0.1,
+        dilation_m: 0.0,
+        expected_error_scale: 0.0,
+        ..Default::default()
+    };
+    assert_eq!(PlaceOptions::default().hidden_side_m, 0.0, "off by default");
+    let table = find_support_planes(&s.points, &opts).unwrap()[0];
+    // The camera looks along +y from in front of the table.
+    let eye = Point3::new(0.2, -1.0, 1.5);
+    let map = |opts: &PlaceOptions, eye: Option<&Point3<f32>>| {
+        build_map_with_errors(
+            &s.points,
+            Some(&errors),
+            &table,
+            opts,
+            UnseenSpace::AsPoints,
+            eye,
+        )
+        .unwrap()
+    };
+    let at = |m: &deocc_robot::place::PlaceMap, x: f32, y: f32| {
+        let cx = ((x - table.bounds[0]) / m.cell_m) as usize;
+        let cy = ((y - table.bounds[1]) / m.cell_m) as usize;
+        cy * m.nx + cx
+    };
+    let off = map(&opts, Some(&eye));
+    assert!(off.occupied[at(&off, 0.2, 0.2)] && !off.occupied[at(&off, 0.2, 0.23)]);
+    opts.hidden_side_m = 0.05;
+    let on = map(&opts, Some(&eye));
+    for y in [0.215, 0.23, 0.245] {
+        assert!(on.occupied[at(&on, 0.2, y)], "behind the point, y = {y}");
+    }
+    assert!(!on.occupied[at(&on, 0.2, 0.265)], "beyond 5 cm");
+    assert!(!on.occupied[at(&on, 0.2, 0.185)], "before the point");
+    assert!(!on.occupied[at(&on, 0.225, 0.2)], "beside the point");
+    assert!(
+        !on.occupied[at(&on, -0.2, 0.23)],
+        "observed points keep their cell"
+    );
+    assert_eq!(map(&opts, None).occupied, off.occupied, "no eye, no growth");
+    opts.hidden_side_m = 0.6;
+    assert!(opts
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .contains("hidden_side_m"));
+}
