@@ -473,7 +473,9 @@ async fn the_bearer_scheme_is_case_insensitive_and_a_non_ascii_token_is_wrong_no
                 vec![("authorization", auth)]
             };
             let mut call = RawCall::open(&addr, "Health", &headers).await.unwrap();
-            call.send(&frame(&[]), true).unwrap();
+            // A refused caller may be answered, and its stream closed, before its body goes out
+            // (h2's InactiveStreamId): the answer is what this test reads.
+            let _ = call.send(&frame(&[]), true);
             call.answer().await.unwrap().status
         }
     };
