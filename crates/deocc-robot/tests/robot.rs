@@ -782,13 +782,7 @@ fn uncertain_generated_points_block_the_cells_they_could_occupy() {
     s.points.push(Point3::new(0.2, 0.2, 0.79));
     let mut errors = vec![0.0f32; s.points.len()];
     *errors.last_mut().unwrap() = 0.05;
-    let mut opts = PlaceOptions {
-        footprint: [0.04, 0.04],
-        height: 0.1,
-        dilation_m: 0.0,
-        expected_error_scale: 0.0,
-        ..Default::default()
-    };
+    let mut opts = small_object_no_envelope();
     assert_eq!(
         PlaceOptions::default().expected_error_scale,
         1.0,
@@ -798,11 +792,7 @@ fn uncertain_generated_points_block_the_cells_they_could_occupy() {
     let map = |opts: &PlaceOptions, e: Option<&[f32]>| {
         build_map_with_errors(&s.points, e, &table, opts, UnseenSpace::AsPoints, None).unwrap()
     };
-    let at = |m: &deocc_robot::place::PlaceMap, x: f32, y: f32| {
-        let cx = ((x - table.bounds[0]) / m.cell_m) as usize;
-        let cy = ((y - table.bounds[1]) / m.cell_m) as usize;
-        cy * m.nx + cx
-    };
+    let at = |m: &deocc_robot::place::PlaceMap, x: f32, y: f32| cell_at(&table, m, x, y);
     let off = map(&opts, Some(&errors));
     assert!(off.occupied[at(&off, 0.2, 0.2)]);
     assert!(!off.occupied[at(&off, 0.24, 0.2)] && off.placeable[at(&off, 0.27, 0.2)]);
@@ -852,13 +842,7 @@ fn generated_points_block_their_hidden_side_along_the_sight_line() {
     s.points.push(Point3::new(-0.2, 0.2, 0.79));
     let mut errors = vec![0.0f32; s.points.len()];
     errors[s.points.len() - 2] = 0.005;
-    let mut opts = PlaceOptions {
-        footprint: [0.04, 0.04],
-        height: 0.1,
-        dilation_m: 0.0,
-        expected_error_scale: 0.0,
-        ..Default::default()
-    };
+    let mut opts = small_object_no_envelope();
     assert_eq!(PlaceOptions::default().hidden_side_m, 0.0, "off by default");
     let table = find_support_planes(&s.points, &opts).unwrap()[0];
     // The camera looks along +y from in front of the table.
@@ -874,11 +858,7 @@ fn generated_points_block_their_hidden_side_along_the_sight_line() {
         )
         .unwrap()
     };
-    let at = |m: &deocc_robot::place::PlaceMap, x: f32, y: f32| {
-        let cx = ((x - table.bounds[0]) / m.cell_m) as usize;
-        let cy = ((y - table.bounds[1]) / m.cell_m) as usize;
-        cy * m.nx + cx
-    };
+    let at = |m: &deocc_robot::place::PlaceMap, x: f32, y: f32| cell_at(&table, m, x, y);
     let off = map(&opts, Some(&eye));
     assert!(off.occupied[at(&off, 0.2, 0.2)] && !off.occupied[at(&off, 0.2, 0.23)]);
     opts.hidden_side_m = 0.05;
@@ -900,4 +880,27 @@ fn generated_points_block_their_hidden_side_along_the_sight_line() {
         .unwrap_err()
         .to_string()
         .contains("hidden_side_m"));
+}
+
+/// Placer settings for a 4 x 4 x 10 cm object, no dilation, no envelope.
+fn small_object_no_envelope() -> PlaceOptions {
+    PlaceOptions {
+        footprint: [0.04, 0.04],
+        height: 0.1,
+        dilation_m: 0.0,
+        expected_error_scale: 0.0,
+        ..Default::default()
+    }
+}
+
+/// The index of the cell of `m` (on `table`) holding `(x, y)`.
+fn cell_at(
+    table: &deocc_robot::place::SupportPlane,
+    m: &deocc_robot::place::PlaceMap,
+    x: f32,
+    y: f32,
+) -> usize {
+    let cx = ((x - table.bounds[0]) / m.cell_m) as usize;
+    let cy = ((y - table.bounds[1]) / m.cell_m) as usize;
+    cy * m.nx + cx
 }
