@@ -4,7 +4,7 @@
 # moves. About 45 minutes on 2 cores. `scripts/figures.py --write README.md` afterwards.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-deocc=target/release/deocc
+deocc=${DEOCC:-target/release/deocc}  # DEOCC=path: a copy, so that a rebuild cannot change it mid-run
 run() { echo "== $*" >&2; "$deocc" "$@" > /dev/null; }
 for s in structured-light clean active-stereo time-of-flight; do
   suffix=$([ "$s" = clean ] && echo "" || echo "-$s")

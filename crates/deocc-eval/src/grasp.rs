@@ -63,6 +63,10 @@ pub struct SceneGrasps {
     /// The revolve stage replaced the target's completion by a surface of revolution
     /// (`deocc_pipeline::revolve`; false for the observed and ground-truth clouds).
     pub target_revolved: bool,
+    /// What the cuboid stage made of the target: "fit", or why it was turned down (empty where
+    /// the stage did not look at it: the revolve stage took it, or the observed and ground-truth
+    /// clouds).
+    pub target_cuboid: String,
     /// Why the planner turned its candidates down (all zero when the target had too few points
     /// to plan on).
     pub plan_stats: PlanStats,
@@ -207,6 +211,7 @@ pub fn score_cloud(
                 .filter(|o| matches!(o, GraspOutcome::Empty))
                 .count(),
             target_revolved: false,
+            target_cuboid: String::new(),
             plan_stats,
             seconds: t.elapsed().as_secs_f64(),
         },
@@ -337,6 +342,22 @@ pub fn grasp_benchmark(
                 && out.report.instances.iter().any(|i| {
                     i.instance_id == target && i.revolve.as_ref().is_some_and(|r| r.fit.is_some())
                 });
+            if k > 0 {
+                row.target_cuboid = out
+                    .report
+                    .instances
+                    .iter()
+                    .find(|i| i.instance_id == target)
+                    .and_then(|i| i.cuboid.as_ref())
+                    .map(|c| {
+                        if c.fit.is_some() {
+                            "fit".to_string()
+                        } else {
+                            c.reason.clone()
+                        }
+                    })
+                    .unwrap_or_default();
+            }
             rows.push(row);
         }
         rows.push({

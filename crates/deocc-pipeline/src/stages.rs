@@ -164,7 +164,7 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "cuboid",
-        what: "cuboid: a completed object whose observed faces are an upright box with its footprint seen (two side faces, or one and the top) gets that box, standing on the support below (posed, z up; `cuboid_upright`)",
+        what: "cuboid: a completed object whose observed faces are an upright box gets that box, standing on the support below: its footprint from two side faces or one and the top, or from one face seen head-on and the completion's depth behind it (posed, z up; `cuboid_upright`)",
         files: &["deocc-pipeline/src/cuboid.rs"],
         functions: &["cuboid_instances", "fit_cuboid"],
         progress: None,

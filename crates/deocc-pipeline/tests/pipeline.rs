@@ -337,6 +337,7 @@ fn run_completes_with_a_stub_completer() {
     let opts = PipelineOptions {
         complete_planes: false,
         revolve_upright: false,
+        cuboid_upright: false,
         gate_min_mean_confidence: 0.5,
         gate_max_seen_through_fraction: 0.5,
         ..Default::default()
