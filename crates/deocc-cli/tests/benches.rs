@@ -164,6 +164,24 @@ fn every_evaluation_runs_at_smoke_size() {
         "{scene}"
     );
     assert!(scene["plan_stats"]["candidates"].is_u64(), "{scene}");
+    // Every completed row says what the shape stages made of the target; the observed and
+    // true clouds have no shape stages.
+    let rows = v2["per_scene"].as_array().unwrap();
+    for (k, row) in rows.iter().enumerate() {
+        let s = &row[1][0];
+        let cuboid = s["target_cuboid"].as_str().unwrap();
+        if k == 0 || k == rows.len() - 1 {
+            assert!(
+                !s["target_revolved"].as_bool().unwrap() && cuboid.is_empty(),
+                "{s}"
+            );
+        } else {
+            assert!(
+                s["target_revolved"].as_bool().unwrap() || !cuboid.is_empty(),
+                "{s}"
+            );
+        }
+    }
     let depth = report(
         d,
         "depth",
