@@ -69,8 +69,9 @@ impl Default for CuboidOptions {
             // A sensor's axial noise on 5 mm voxels turns a face's PCA normals by several
             // degrees: with 16 neighbours and 0.9, 3 mm and 15 degrees, no box of pickup-v2's
             // tuning scenes was fitted under the structured-light model (concentration
-            // 0.79-0.87, residuals above 3 mm), and few on clean depth (0.85-0.89). A
-            // cylinder's or a faceted bottle's normals stay at or below 0.7
+            // 0.79-0.87, residuals above 3 mm), and few on clean depth (0.85-0.89). Flasks and
+            // cylinders stay below 0.7; a faceted bottle reached 0.75, so `min_axis_share`
+            // (facets between the axes) and the residual keep faceted bodies out
             // (docs/decisions.md, "The cuboid stage under a sensor's noise").
             min_concentration: 0.75,
             face_deg: 20.0,
