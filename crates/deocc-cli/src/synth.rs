@@ -49,6 +49,11 @@ pub struct ScenesArgs {
     /// With --preset: only its first N scenes.
     #[arg(long, requires = "preset")]
     first: Option<usize>,
+    /// With --preset: its kind of scene from this seed on instead of its test seeds (the
+    /// tuning scenes `deocc eval --tuning` scores: pickup-v2 9450000, place-v1 9350000), as
+    /// many as the preset has or --first says.
+    #[arg(long, requires = "preset", value_name = "SEED")]
+    from_seed: Option<u64>,
     /// Output folder (scene_000000/, ..., manifest.json, stats.json).
     #[arg(long)]
     out: PathBuf,
@@ -124,6 +129,10 @@ fn scenes(a: ScenesArgs) -> Result<()> {
     let p = match &a.preset {
         Some(name) => {
             let mut p = preset(name)?;
+            if let Some(s) = a.from_seed {
+                let n = p.seeds.len() as u64;
+                p.seeds = (s..s + n).collect();
+            }
             if let Some(n) = a.first {
                 p.seeds.truncate(n);
             }

@@ -131,6 +131,37 @@ fn a_preset_is_measured_by_the_sensor_named() {
     );
 }
 
+/// `--from-seed` renders a preset's kind of scene from other seeds (its tuning scenes), where a
+/// study looks at one scene without looking at the test split.
+#[test]
+fn a_preset_renders_from_another_seed() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("s");
+    let o = deocc()
+        .args([
+            "synth",
+            "scenes",
+            "--preset",
+            "place-v1",
+            "--from-seed",
+            "9350003",
+            "--first",
+            "2",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for (k, seed) in [(0, 9_350_003u64), (1, 9_350_004)] {
+        let text = std::fs::read_to_string(out.join(format!("scene_{k:06}/scene.json"))).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["seed"].as_u64(), Some(seed), "scene {k}");
+        assert_eq!(v["config"]["kind"], "place", "scene {k}");
+    }
+    assert!(!out.join("scene_000002").exists());
+}
+
 /// `--burst K` renders K frames from each pose, each with its own sensor noise; `deocc run` fuses
 /// them into one frame (the report says which) with fewer pixels missing than any one of them;
 /// a command that measures frames one at a time refuses `--burst` instead of ignoring it.

@@ -62,6 +62,16 @@ pub fn evidence(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -
     out
 }
 
+/// Whether `p` lies in front of some view's camera and inside its image: a point no view could
+/// have measured is out of every frame, not a drop-out (see [`Evidence::Unmeasured`]).
+pub fn in_a_frame(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -> bool {
+    scene.frames.iter().zip(projectors).any(|(f, proj)| {
+        proj.project(p).is_some_and(|(x, y, _)| {
+            x >= 0.0 && y >= 0.0 && x < f.depth.width() as f32 && y < f.depth.height() as f32
+        })
+    })
+}
+
 /// Every view that has a measurement where `p` projects sees something in front of it, and at
 /// least one view does.
 pub fn hidden_in_views(p: &Point3<f32>, scene: &SceneInput, projectors: &[Projector]) -> bool {

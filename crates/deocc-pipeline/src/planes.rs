@@ -19,7 +19,7 @@ use deocc_geometry::{PointCloud, Provenance};
 use deocc_io::scene::SceneInput;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
-use crate::carve::{evidence, Evidence};
+use crate::carve::{evidence, in_a_frame, Evidence};
 
 #[derive(Debug, Clone)]
 pub struct PlaneOptions {
@@ -915,9 +915,14 @@ pub fn complete_found_planes(
                     }
                 }
                 // A cell no view measures inside the observed hull: the sensor's drop-outs on
-                // a surface seen at a grazing angle, or its projector's shadow on it.
-                let dropped =
-                    opts.fill_unmeasured && e == Evidence::Unmeasured && inside(&joint_hull, &q);
+                // a surface seen at a grazing angle, or its projector's shadow on it. Only where
+                // some view's image holds it: the joint hull of several views spans ground that
+                // none of them frames (the floor between two views' footprints), and nothing
+                // says a surface is there.
+                let dropped = opts.fill_unmeasured
+                    && e == Evidence::Unmeasured
+                    && inside(&joint_hull, &q)
+                    && in_a_frame(&p, scene, &projectors);
                 if e == Evidence::Hidden || dropped {
                     hidden.push((p, q));
                 }
