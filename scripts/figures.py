@@ -109,6 +109,10 @@ def table():
         f"{pct(rec_sl['completeness_gain_hidden_region_segmenter'])} | "
         f"{pct(rec['completeness_gain_whole_scene_segmenter'])} / "
         f"{pct(rec['completeness_gain_hidden_region_segmenter'])} | - |",
+        f"| | accuracy change of the completed cloud against the observed one (lower is better), "
+        f"ground-truth masks / default segmenter | "
+        f"{pct(rec_sl['accuracy_change'])} / {pct(rec_sl['accuracy_change_segmenter'])} | "
+        f"{pct(rec['accuracy_change'])} / {pct(rec['accuracy_change_segmenter'])} | - |",
         f"| objects, bench-v1 {objects['scenes']} scenes, default segmenter (`objects.json`) | "
         f"hidden-surface recall, shipped chain | {objects_sl_text} | "
         f"{num(recall['method'])} (paired difference {recall['difference']:+.3f} "
