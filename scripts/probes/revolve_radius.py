@@ -3,10 +3,12 @@
 
 Renders a preset's tuning scenes, runs `deocc run` on each and compares, for every target the
 revolve stage fitted, each fitted slice's radius with a circle fitted to the true surface
-(`ground_truth.ply`, the target's points) at the same height. Standard library only.
+(`ground_truth.ply`, the target's points) at the same height.
 
-    python3 scripts/revolve_radius_study.py --deocc target/release/deocc --work /tmp/radius \\
-        --preset pickup-v2 --from-seed 9450000 --scenes 60 --sensor structured-light
+    python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy
+    /tmp/venv/bin/python scripts/probes/revolve_radius.py --deocc target/release/deocc \\
+        --work /tmp/radius --preset pickup-v2 --from-seed 9450000 --scenes 60 \\
+        --sensor structured-light
 
 docs/decisions.md ("What keeps pickup-v2 under structured light short of the true cloud")
 quotes its output. The scenes are tuning scenes, never the test split.
@@ -14,73 +16,24 @@ quotes its output. The scenes are tuning scenes, never the test split.
 
 import argparse
 import json
-import math
 import os
 import statistics
-import struct
 import subprocess
 import sys
 
-PLY_TYPES = {"float": "f", "uchar": "B", "uint": "I", "int": "i", "double": "d"}
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ply import read_ply  # noqa: E402
 
 
-def read_ply(path):
-    """The vertices of a binary little-endian PLY as a list of dicts."""
-    with open(path, "rb") as f:
-        props, n = [], 0
-        while True:
-            line = f.readline().decode().strip()
-            if line.startswith("element vertex"):
-                n = int(line.split()[-1])
-            elif line.startswith("property"):
-                _, kind, name = line.split()
-                props.append((name, PLY_TYPES[kind]))
-            elif line == "end_header":
-                break
-        fmt = "<" + "".join(k for _, k in props)
-        size = struct.calcsize(fmt)
-        data = f.read(n * size)
-    names = [name for name, _ in props]
-    return [dict(zip(names, struct.unpack_from(fmt, data, i * size))) for i in range(n)]
-
-
-def circle(points):
-    """Kasa's algebraic circle through (x, y) points: (cx, cy, r), or None."""
-    # x^2 + y^2 = a x + b y + c, least squares via the 3x3 normal equations.
-    m = [[0.0] * 3 for _ in range(3)]
-    v = [0.0] * 3
-    for x, y in points:
-        row = (x, y, 1.0)
-        rhs = x * x + y * y
-        for i in range(3):
-            v[i] += row[i] * rhs
-            for j in range(3):
-                m[i][j] += row[i] * row[j]
-    try:
-        a, b, c = solve3(m, v)
-    except ZeroDivisionError:
-        return None
-    cx, cy = a / 2, b / 2
+def circle(x, y):
+    """Kasa's algebraic circle through the points (x, y): (cx, cy, r), or None."""
+    a = np.stack([x, y, np.ones_like(x)], 1)
+    (p, q, c), *_ = np.linalg.lstsq(a, x * x + y * y, rcond=None)
+    cx, cy = p / 2, q / 2
     r2 = c + cx * cx + cy * cy
-    return (cx, cy, math.sqrt(r2)) if r2 > 0 else None
-
-
-def solve3(m, v):
-    """Gaussian elimination with partial pivoting on a 3x3 system."""
-    a = [row[:] + [v[i]] for i, row in enumerate(m)]
-    for k in range(3):
-        p = max(range(k, 3), key=lambda i: abs(a[i][k]))
-        if abs(a[p][k]) < 1e-15:
-            raise ZeroDivisionError
-        a[k], a[p] = a[p], a[k]
-        for i in range(k + 1, 3):
-            f = a[i][k] / a[k][k]
-            for j in range(k, 4):
-                a[i][j] -= f * a[k][j]
-    x = [0.0] * 3
-    for i in (2, 1, 0):
-        x[i] = (a[i][3] - sum(a[i][j] * x[j] for j in range(i + 1, 3))) / a[i][i]
-    return x
+    return (cx, cy, float(np.sqrt(r2))) if r2 > 0 else None
 
 
 def main():
@@ -116,17 +69,15 @@ def main():
         fit = inst and inst.get("revolve") and inst["revolve"].get("fit")
         if not fit:
             continue
-        truth = [
-            (p["x"], p["y"], p["z"])
-            for p in read_ply(os.path.join(scene, "ground_truth.ply"))
-            if p["instance"] == target
-        ]
+        g = read_ply(os.path.join(scene, "ground_truth.ply"))
+        own = g["instance"] == target
+        x, y, z = g["x"][own], g["y"][own], g["z"][own]
         errors = []
         for z0, r in fit["radii"]:
-            ring = [(x, y) for x, y, z in truth if z0 <= z < z0 + 0.01]
-            if len(ring) < 3:
-                ring = [(x, y) for x, y, z in truth if abs(z - z0 - 0.005) < 0.02]
-            c = circle(ring) if len(ring) >= 3 else None
+            ring = (z >= z0) & (z < z0 + 0.01)
+            if ring.sum() < 3:
+                ring = np.abs(z - z0 - 0.005) < 0.02
+            c = circle(x[ring], y[ring]) if ring.sum() >= 3 else None
             if c and c[2] < 0.2:  # a degenerate ring (a few collinear points) says nothing
                 errors.append(r - c[2])
         if errors:
