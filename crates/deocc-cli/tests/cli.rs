@@ -649,6 +649,15 @@ fn eval_commands_run_under_a_sensor_model() {
         .as_f64()
         .unwrap()
         .is_finite());
+    // Each row's wall time per scene, the front half included, and the machine it ran on.
+    for key in ["seconds_per_scene", "seconds_per_scene_segmenter"] {
+        let (mean, max) = (
+            r[key]["mean"].as_f64().unwrap(),
+            r[key]["max"].as_f64().unwrap(),
+        );
+        assert!(mean > 0.0 && max >= mean, "{key}: {}", r[key]);
+    }
+    assert!(r["machine"]["cores"].as_u64().unwrap() >= 1);
     let perc = dir.path().join("perc.json");
     let o = deocc()
         .args([

@@ -56,7 +56,34 @@ pub struct ReconstructionReport {
     pub completeness_gain_hidden_region_segmenter_objects_only: f64,
     pub objects_completed: usize,
     pub objects_per_second: f64,
+    /// Wall seconds a scene takes from its frames to the completed cloud, the front half (depth
+    /// front end, and with the segmenter its segmentation) included: mean and largest, with the
+    /// given masks and with the default segmenter. What issue 46 compares across sensors.
+    pub seconds_per_scene: TimeSummary,
+    pub seconds_per_scene_segmenter: TimeSummary,
+    /// The machine and its load when the run began (timings from a loaded machine are not a
+    /// quiet machine's).
+    pub machine: crate::bench::timing::Machine,
     pub mean_stage_seconds: deocc_pipeline::StageTimings,
+}
+
+/// Mean and largest of a set of timings, seconds.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct TimeSummary {
+    pub mean: f64,
+    pub max: f64,
+}
+
+impl TimeSummary {
+    pub fn of(seconds: &[f64]) -> Self {
+        if seconds.is_empty() {
+            return Self::default();
+        }
+        Self {
+            mean: seconds.iter().sum::<f64>() / seconds.len() as f64,
+            max: seconds.iter().copied().fold(f64::MIN, f64::max),
+        }
+    }
 }
 
 /// Runs [`ReconstructionReport`] on the first `scenes` of bench-v1; `tick` is called after each.
@@ -76,12 +103,15 @@ pub fn reconstruction_benchmark(
     let mut seg_objects_figs = Vec::new();
     let (mut objects, mut total_s) = (0usize, 0f64);
     let mut stages = deocc_pipeline::StageTimings::default();
+    let machine = crate::bench::timing::Machine::now();
+    let (mut wall, mut wall_seg) = (Vec::new(), Vec::new());
     for &seed in &preset.seeds[..n] {
         let rendered = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         let scene = rendered.scene_input();
         // The product's front half (the depth front end on every frame) before each run.
         let mut scene = scene;
         let unlabelled_input = crate::scenes::unlabelled(scene.clone());
+        let started = std::time::Instant::now();
         let prepared = deocc_pipeline::front::prepare(&mut scene, opts, None, segmenter, false)?;
         let out = deocc_pipeline::run_prepared(
             &scene,
@@ -90,6 +120,7 @@ pub fn reconstruction_benchmark(
             prepared,
             &deocc_pipeline::Unobserved,
         )?;
+        wall.push(started.elapsed().as_secs_f64());
         let cams: Vec<_> = scene.frames.iter().map(|f| f.camera).collect();
         let gt = in_frustum(
             &rendered.ground_truth.cloud,
@@ -100,6 +131,7 @@ pub fn reconstruction_benchmark(
         deo_figs.push(figures(&align_to_ground_truth(&out.completed, &gt)?, &gt)?);
         // The same scene with the default segmenter instead of the ground-truth masks.
         let mut unlabelled = unlabelled_input;
+        let started = std::time::Instant::now();
         let prepared =
             deocc_pipeline::front::prepare(&mut unlabelled, opts, None, segmenter, true)?;
         let seg_out = deocc_pipeline::run_prepared(
@@ -109,6 +141,7 @@ pub fn reconstruction_benchmark(
             prepared,
             &deocc_pipeline::Unobserved,
         )?;
+        wall_seg.push(started.elapsed().as_secs_f64());
         seg_figs.push(figures(
             &align_to_ground_truth(&seg_out.completed, &gt)?,
             &gt,
@@ -162,6 +195,9 @@ pub fn reconstruction_benchmark(
         rows: vec![vis, deo, seg, seg_objects],
         objects_completed: objects,
         objects_per_second: objects as f64 / total_s.max(1e-9),
+        seconds_per_scene: TimeSummary::of(&wall),
+        seconds_per_scene_segmenter: TimeSummary::of(&wall_seg),
+        machine,
         mean_stage_seconds: stages,
     })
 }
