@@ -70,9 +70,10 @@ pub struct PipelineOptions {
     /// (above 1: hulls only). What the views see through is not filled either way.
     pub plane_min_rectangularity: f32,
     /// The plane fill also fills what no view measures, not only what the views see something in
-    /// front of: cells inside the plane's observed hull, and the pixels of a level plane's
-    /// instance mask that have no depth, where their sight line meets the plane (a sensor's
-    /// drop-outs on a table seen at a grazing angle, a projector's shadow on it;
+    /// front of: cells inside the plane's observed hull that some view's image holds (not the
+    /// ground between several views' footprints that none of them frames), and the pixels of a
+    /// level plane's instance mask that have no depth, where their sight line meets the plane
+    /// (a sensor's drop-outs on a table seen at a grazing angle, a projector's shadow on it;
     /// [`crate::planes::PlaneOptions::mask_window_px`]).
     pub plane_fill_unmeasured: bool,
     /// Keep a generated point only if every view agrees it is hidden ([`crate::carve`]).

@@ -98,7 +98,7 @@ pub const OPTIONS: &[OptionHelp] = &[
     row!("up", Range::Direction, "gravity's opposite in the world frame"),
     row!("complete_planes", Range::Bool, "fill the hidden parts of the floor, walls and table tops"),
     row!("plane_min_rectangularity", f(0.0, 2.0), "fill a plane's enclosing rectangle when its hull fills this share of it (above 1: hulls only)"),
-    row!("plane_fill_unmeasured", Range::Bool, "the plane fill also fills what no view measures: cells inside a plane's hull, and a level plane's masked pixels without depth (drop-outs, shadows)"),
+    row!("plane_fill_unmeasured", Range::Bool, "the plane fill also fills what no view measures: cells inside a plane's hull that a view frames, and a level plane's masked pixels without depth (drop-outs, shadows)"),
     row!("carve_generated", Range::Bool, "keep a generated point only where every view agrees it is hidden"),
     row!("carve_outside_bounding_planes_m", f(0.0, 10.0), "drop generated points this far under the floor or behind a wall (0 = off), metres"),
     row!("max_scene_radius_m", Range::Positive, "every camera within this distance of the cameras' median position, metres"),
