@@ -131,7 +131,10 @@ fn scenes(a: ScenesArgs) -> Result<()> {
             let mut p = preset(name)?;
             if let Some(s) = a.from_seed {
                 let n = p.seeds.len() as u64;
-                p.seeds = (s..s + n).collect();
+                let end = s.checked_add(n).with_context(|| {
+                    format!("--from-seed {s}: the preset's {n} seeds run past the last seed")
+                })?;
+                p.seeds = (s..end).collect();
             }
             if let Some(n) = a.first {
                 p.seeds.truncate(n);

@@ -160,6 +160,18 @@ fn a_preset_renders_from_another_seed() {
         assert_eq!(v["config"]["kind"], "place", "scene {k}");
     }
     assert!(!out.join("scene_000002").exists());
+    // Seeds past the last one are refused, naming the flag, before anything is written.
+    let late = dir.path().join("late");
+    let o = deocc()
+        .args(["synth", "scenes", "--preset", "place-v1", "--from-seed"])
+        .arg(u64::MAX.to_string())
+        .arg("--out")
+        .arg(&late)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--from-seed"));
+    assert!(!late.exists());
 }
 
 /// `--burst K` renders K frames from each pose, each with its own sensor noise; `deocc run` fuses
