@@ -178,7 +178,7 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "planes",
-        what: "plane fill (up to three planes per instance: RANSAC start, PCA refits down to a robust 2 mm band; a plane's observed hull, or its smallest enclosing rectangle when the hull fills >= 80% of it, whose added corners stay on the cameras' side of the walls and floor; what the views see through is never filled; a level plane's masked pixels without depth, a sensor's drop-outs and shadows, put where their sight line meets it when the instance's measured pixels around them lie on it); plane pieces (instances with 80% of their points in a bounding plane, the floor or a wall: not completed, the fill is their completion; a table top is completed) (`ScenePlanes::find` once a run)",
+        what: "plane fill (up to three planes per instance: RANSAC start, PCA refits down to a robust 2 mm band; a plane's observed hull, or its smallest enclosing rectangle when the hull fills >= 80% of it, whose added corners stay on the cameras' side of the walls and floor; what the views see through is never filled; a level plane's masked pixels without depth, a sensor's drop-outs and shadows, put where their sight line meets it when the instance's measured pixels around them lie on it, and the hull's cells no view measures filled only where some view's image holds them); plane pieces (instances with 80% of their points in a bounding plane, the floor or a wall: not completed, the fill is their completion; a table top is completed) (`ScenePlanes::find` once a run)",
         files: &["deocc-pipeline/src/planes.rs"],
         functions: &["ScenePlanes::find", "plane_pieces", "complete_found_planes"],
         progress: Some(0.77),
