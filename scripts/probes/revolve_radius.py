@@ -72,7 +72,7 @@ def main():
         g = read_ply(os.path.join(scene, "ground_truth.ply"))
         own = g["instance"] == target
         x, y, z = g["x"][own], g["y"][own], g["z"][own]
-        errors = []
+        errors, centres = [], []
         for z0, r in fit["radii"]:
             ring = (z >= z0) & (z < z0 + 0.01)
             if ring.sum() < 3:
@@ -80,11 +80,14 @@ def main():
             c = circle(x[ring], y[ring]) if ring.sum() >= 3 else None
             if c and c[2] < 0.2:  # a degenerate ring (a few collinear points) says nothing
                 errors.append(r - c[2])
+                centres.append(np.hypot(fit["axis"][0] - c[0], fit["axis"][1] - c[1]))
         if errors:
             e = statistics.mean(errors)
             by_kind.setdefault(kind, []).append(e)
             print(f"{info['seed']} {kind:15s} fitted {fit['radii'][0][1] * 1e3:5.1f} mm, "
-                  f"error {e * 1e3:+5.1f} mm, arc {fit['arc_deg']:.0f} deg"
+                  f"error {e * 1e3:+5.1f} mm, axis off {statistics.mean(centres) * 1e3:4.1f} mm, "
+                  f"arc {fit['arc_deg']:.0f} deg"
+                  f"{'' if fit.get('outline_offset_m') is None else ', outline %+.1f mm' % (fit['outline_offset_m'] * 1e3)}"
                   f"{' (from the top)' if fit['from_top'] else ''}")
     print("kind: fitted targets, radius error median / mean (mm)")
     for kind, errs in sorted(by_kind.items()):

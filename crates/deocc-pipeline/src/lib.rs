@@ -239,6 +239,10 @@ fn check_input(scene: &SceneInput, opts: &PipelineOptions) -> Result<(), Pipelin
 /// one circle 11-25%.
 const REVOLVE_MAX_SEEN_THROUGH: f32 = 0.06;
 
+/// Outline rays a revolved fit needs before the outline refits it (`revolve_outline`): a few
+/// image rows on either side.
+const REVOLVE_MIN_OUTLINE_RAYS: usize = 6;
+
 /// Stage 6: the plane fill joins the cloud (when the options ask), after every other stage has
 /// used it.
 fn join_plane_fill(
@@ -480,12 +484,18 @@ fn shape_stages(
             n as f32 / pts.len().max(1) as f32
         };
         let cameras: Vec<_> = scene.frames.iter().map(|f| f.camera.center()).collect();
+        let outline = |id: u16| revolve::outline_rays(&scene.frames, id);
         (generated, revolved) = revolve::revolve_instances(
             observed,
             &generated,
             ground,
             &ids,
-            (&cameras, Some(&seen_through)),
+            (
+                &cameras,
+                Some(&seen_through),
+                opts.revolve_outline
+                    .then_some(&outline as revolve::Outline<'_>),
+            ),
             &revolve::RevolveOptions {
                 // With the views' check the normals may be noisier than a fit alone may trust
                 // (a sensor's normals on a bottle's side); chosen on pickup-v2's tuning scenes
@@ -499,6 +509,7 @@ fn shape_stages(
                 // and the side's 2 mm were chosen on pickup-v1's tuning seeds
                 // (`deocc eval grasp --tuning`).
                 max_top_residual_m: (0.8 * opts.observed_voxel_m as f32).max(0.002),
+                min_outline_rays: REVOLVE_MIN_OUTLINE_RAYS,
                 ..Default::default()
             },
         );

@@ -94,6 +94,7 @@ pub const OPTIONS: &[OptionHelp] = &[
     row!("plane_piece_min_fraction", Range::Float { min: 0.0, max: 1.0, min_open: true }, "share of an instance's points in a bounding plane that makes it a plane piece"),
     row!("extend_to_support", Range::Bool, "extend hidden bottoms down to the surface below (posed scenes)"),
     row!("revolve_upright", Range::Bool, "an object whose seen side is an upright solid of revolution gets that surface"),
+    row!("revolve_outline", Range::Bool, "narrow a revolved object fitted wider than its outline in the views (the masks' edges)"),
     row!("cuboid_upright", Range::Bool, "an object whose seen faces are an upright box gets that box"),
     row!("up", Range::Direction, "gravity's opposite in the world frame"),
     row!("complete_planes", Range::Bool, "fill the hidden parts of the floor, walls and table tops"),

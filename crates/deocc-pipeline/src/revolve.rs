@@ -23,6 +23,17 @@
 //! the top's rim is fitted instead (`fit_top`) and the object taken for a straight cylinder,
 //! when the rim is at least `min_top_radius_m` in radius and spans `min_top_arc_deg`.
 //!
+//! With `revolve_outline` (off by default: docs/decisions.md, "A revolved solid no wider than
+//! its outline", has why) an accepted fit wider than the object's outline is narrowed to it. A
+//! sensor's axial noise, smoothed by the depth front end, flattens the arc on a can's flanks and
+//! fits it several millimetres too wide (cans +4.9 mm median on pickup-v2's tuning scenes under
+//! the structured-light model; a 35 mm can then no longer fits an 85 mm gripper), but the mask's
+//! edge against the background behind it does not move with the depth. The rays from the
+//! cameras past that edge ([`outline_rays`]) lie one radius from the axis; [`refit_to_outline`]
+//! fits the axis and one offset to every radius to them and to the side points facing a camera
+//! (where the smoothing does not bias the depth), and keeps a narrower fit only: the outline
+//! bounds the body from outside, and a mug's handle widens it.
+//!
 //! An accepted instance's generated points (the completer's, the support stage's) are replaced by
 //! the fitted surface, sampled every `sample_m` from what it stands on to its highest observed
 //! point. What it stands on is [`support::support_height`] under the solid's widest radius (plus
@@ -93,6 +104,11 @@ pub struct RevolveOptions {
     /// is refused (1 = never): the sensor measured the table or the wall behind where the solid
     /// would be. A flask's broad face fits a circle far wider than the flask.
     pub max_seen_through_fraction: f32,
+    /// With the views' outline ([`outline_rays`]), an accepted fit's axis and radii are refitted
+    /// to at least this many outline rays at its side's heights and its side points within
+    /// `front_deg` of facing a camera ([`refit_to_outline`]); 0 = never.
+    pub min_outline_rays: usize,
+    pub front_deg: f32,
 }
 
 impl Default for RevolveOptions {
@@ -115,6 +131,8 @@ impl Default for RevolveOptions {
             rim_inset_m: 0.00125,
             max_drop_m: 0.5,
             max_seen_through_fraction: 1.0,
+            min_outline_rays: 0,
+            front_deg: 35.0,
         }
     }
 }
@@ -137,6 +155,10 @@ pub struct Revolution {
     /// The share of the sampled surface the views see through, when it was measured.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seen_through_fraction: Option<f32>,
+    /// The offset the views' outline gave every radius (the axis moved with it), when it was
+    /// refitted ([`RevolveOptions::min_outline_rays`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outline_offset_m: Option<f32>,
 }
 
 impl Revolution {
@@ -325,6 +347,7 @@ pub fn fit_revolution(
         side_points: side.len(),
         from_top: false,
         seen_through_fraction: None,
+        outline_offset_m: None,
     };
     if let Some(&(_, r)) = fit
         .radii
@@ -458,7 +481,266 @@ fn fit_top(
         side_points: 0,
         from_top: true,
         seen_through_fraction: None,
+        outline_offset_m: None,
     })
+}
+
+/// A ray past an object's outline (world frame): from a camera's centre through the boundary
+/// between the outermost pixel of the object's mask in an image row and the background beside it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutlineRay {
+    pub origin: Point3<f32>,
+    pub dir: Vector3<f32>,
+    /// The angle one pixel spans there (radians): the outline's own uncertainty.
+    pub pixel_rad: f32,
+}
+
+/// The outline rays of an instance in every view ([`outline_rays`]): what the revolve stage
+/// refits a solid's radius to.
+pub type Outline<'a> = &'a (dyn Fn(u16) -> Vec<OutlineRay> + Sync);
+
+/// How far (pixels) outward from a mask's outermost pixel the background is looked for.
+pub const OUTLINE_LOOK_PX: u32 = 8;
+
+/// A measured pixel beside the outline this much nearer than the object's own depth in that row
+/// is an occluder's edge, not the object's outline.
+pub const OUTLINE_OCCLUDER_M: f32 = 0.02;
+
+/// The outline rays of instance `id` in `frames` (their instance maps, depth and cameras): in
+/// each image row, the leftmost and the rightmost pixel of its mask, where the first measured
+/// pixel outward (within [`OUTLINE_LOOK_PX`], not of the object) is no nearer than the object's
+/// median depth in the row less [`OUTLINE_OCCLUDER_M`]: the object's own outline against what
+/// lies behind it. Where an occluder cuts the mask, or the image's edge, or nothing is measured
+/// beside it (a shadow band whose far side is unknown), the row's side gives no ray. Each ray
+/// passes through the pixel boundary (a mask of pixel centres puts the true outline there on
+/// average).
+pub fn outline_rays(frames: &[deocc_io::scene::Frame], id: u16) -> Vec<OutlineRay> {
+    let mut out = Vec::new();
+    for f in frames {
+        let Some(map) = f.instances.as_ref() else {
+            continue;
+        };
+        let (w, h) = (map.width, map.height);
+        if (f.depth.width(), f.depth.height()) != (w, h) {
+            continue;
+        }
+        let rot = f.camera.world_from_camera.rotation;
+        let centre = f.camera.center();
+        for v in 0..h {
+            let row: Vec<u32> = (0..w).filter(|&u| map.get(u, v) == id).collect();
+            let (Some(&first), Some(&last)) = (row.first(), row.last()) else {
+                continue;
+            };
+            let mut own: Vec<f32> = row
+                .iter()
+                .map(|&u| f.depth.get(u, v))
+                .filter(|&z| z > 0.0)
+                .collect();
+            if own.is_empty() {
+                continue;
+            }
+            own.sort_by(f32::total_cmp);
+            let z_own = own[own.len() / 2];
+            for (edge, step, boundary) in
+                [(first, -1i64, first as f32), (last, 1, last as f32 + 1.0)]
+            {
+                let mut clear = false;
+                for k in 1..=OUTLINE_LOOK_PX as i64 {
+                    let u = edge as i64 + step * k;
+                    if u < 0 || u >= w as i64 {
+                        break;
+                    }
+                    let z = f.depth.get(u as u32, v);
+                    if map.get(u as u32, v) == id || z <= 0.0 {
+                        continue;
+                    }
+                    clear = z >= z_own - OUTLINE_OCCLUDER_M;
+                    break;
+                }
+                if clear {
+                    let p = f.camera.intrinsics.unproject(boundary, v as f32 + 0.5, 1.0);
+                    out.push(OutlineRay {
+                        origin: centre,
+                        dir: rot * p.coords,
+                        pixel_rad: 1.0 / f.camera.intrinsics.fx(),
+                    });
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Refits an accepted fit's axis and one offset to all its radii to the outline rays (levelled)
+/// and the side points facing a camera (levelled `points`, `cameras`): the rays' distance to the
+/// axis is the radius at their height, and the points on the front of the arc lie on it. Both
+/// stay true under a sensor's axial noise, which the depth front end's smoothing turns into a
+/// flatter arc on the flanks and a fit too wide; the outline does not depend on depth at all.
+/// Robust (Huber, 2 mm) Gauss-Newton, each group weighing as much as the other. The outline
+/// bounds the body from outside (a mug's handle widens it, nothing narrows it) to within half a
+/// pixel, so a fit is only narrowed, and only to the outline plus half a pixel at the rays'
+/// distance (a bottle fitted 1-2 mm wide on pickup-v2's tuning scenes was otherwise narrowed
+/// 1 mm below its true radius, median). `None` (the fit left as it is) with fewer than
+/// `min_outline_rays` rays at the side slices' heights, a fit within half a pixel of the
+/// outline or wider, or one narrower by more than a third of the median radius.
+fn refit_to_outline(
+    fit: &Revolution,
+    points: &[Point3<f32>],
+    rays: &[OutlineRay],
+    cameras: &[Point3<f32>],
+    o: &RevolveOptions,
+) -> Option<(Vector2<f32>, f32)> {
+    if fit.from_top || fit.radii.is_empty() || cameras.is_empty() {
+        return None;
+    }
+    let c0 = Vector2::new(fit.axis[0], fit.axis[1]);
+    let z_lo = fit.radii[0].0;
+    let z_hi = fit.radii[fit.radii.len() - 1].0 + o.slice_m;
+    // Rays: the 2-D line (origin, unit direction), the side of it the axis lies on, the height
+    // of their closest approach to the axis.
+    let mut slack: Vec<f32> = Vec::new();
+    let lines: Vec<(Vector2<f32>, Vector2<f32>, f32, f32)> = rays
+        .iter()
+        .filter_map(|ray| {
+            let (org, d) = (&ray.origin, &ray.dir);
+            let dxy = Vector2::new(d.x, d.y);
+            let n2 = dxy.norm_squared();
+            if n2 < 1e-6 {
+                return None;
+            }
+            let oxy = Vector2::new(org.x, org.y);
+            let lambda = (c0 - oxy).dot(&dxy) / n2;
+            let z = org.z + lambda * d.z;
+            let t = dxy / n2.sqrt();
+            let s = t.x * (c0.y - oxy.y) - t.y * (c0.x - oxy.x);
+            // Rows across the top's far rim or the base's near rim pass inside the solid, and
+            // nearest to the axis above or below its side.
+            let side_height = z >= z_lo && z <= z_hi;
+            if !(lambda > 0.0 && side_height) {
+                return None;
+            }
+            slack.push(0.5 * ray.pixel_rad * lambda * d.norm());
+            Some((oxy, t, s.signum(), z))
+        })
+        .collect();
+    if lines.len() < o.min_outline_rays {
+        return None;
+    }
+    let r_of = |z: f32| fit.radius_at(z, o.slice_m);
+    let cos_front = o.front_deg.to_radians().cos();
+    let front: Vec<(Vector2<f32>, f32)> = points
+        .iter()
+        .filter(|p| p.z >= z_lo && p.z <= z_hi)
+        .filter_map(|p| {
+            let q = Vector2::new(p.x, p.y);
+            let radial = (q - c0).try_normalize(1e-6)?;
+            if ((q - c0).norm() - r_of(p.z)).abs() > 0.01 {
+                return None;
+            }
+            cameras
+                .iter()
+                .any(|cam| {
+                    (Vector2::new(cam.x, cam.y) - q)
+                        .try_normalize(1e-6)
+                        .is_some_and(|to_cam| radial.dot(&to_cam) >= cos_front)
+                })
+                .then_some((q, p.z))
+        })
+        .collect();
+    if front.len() < o.min_points / 2 {
+        return None;
+    }
+    let (wl, wp) = (1.0 / lines.len() as f32, 1.0 / front.len() as f32);
+    let huber = |e: f32| {
+        if e.abs() <= 0.002 {
+            1.0
+        } else {
+            0.002 / e.abs()
+        }
+    };
+    let (mut c, mut delta) = (c0, 0.0f32);
+    for _ in 0..30 {
+        let mut hm = nalgebra::Matrix3::<f32>::zeros();
+        let mut g = Vector3::<f32>::zeros();
+        let mut add = |j: Vector3<f32>, e: f32, w: f32| {
+            let w = w * huber(e);
+            hm += j * j.transpose() * w;
+            g += j * (w * e);
+        };
+        for &(oxy, t, side, z) in &lines {
+            let s = side * (t.x * (c.y - oxy.y) - t.y * (c.x - oxy.x));
+            add(
+                Vector3::new(-side * t.y, side * t.x, -1.0),
+                s - (r_of(z) + delta),
+                wl,
+            );
+        }
+        for &(q, z) in &front {
+            let v = q - c;
+            let d = v.norm().max(1e-9);
+            add(
+                Vector3::new(-v.x / d, -v.y / d, -1.0),
+                d - (r_of(z) + delta),
+                wp,
+            );
+        }
+        let step = (hm + nalgebra::Matrix3::identity() * 1e-7)
+            .lu()
+            .solve(&(-g))?;
+        c += Vector2::new(step.x, step.y);
+        delta += step.z;
+        if step.norm() < 1e-6 {
+            break;
+        }
+    }
+    let r_min = fit.radii.iter().map(|r| r.1).fold(f32::MAX, f32::min);
+    let r_med = {
+        let mut r: Vec<f32> = fit.radii.iter().map(|r| r.1).collect();
+        r.sort_by(f32::total_cmp);
+        r[r.len() / 2]
+    };
+    if !(c.x.is_finite()
+        && c.y.is_finite()
+        && -delta <= r_med / 3.0
+        && (c - c0).norm() <= r_med / 2.0)
+    {
+        return None;
+    }
+    // The outline is known to half a pixel: narrower by less says nothing. Beyond it, the fit
+    // is narrowed to the outline plus that half pixel, its axis moved in proportion.
+    slack.sort_by(f32::total_cmp);
+    let half_pixel = slack[slack.len() / 2];
+    let kept = delta + half_pixel;
+    if kept >= 0.0 || r_min + kept < o.min_radius_m {
+        return None;
+    }
+    Some((c0 + (c - c0) * (kept / delta), kept))
+}
+
+/// [`refit_to_outline`] on the world-frame `rays` (levelled here by `level`, like `points` and
+/// `cameras`), applied to `fit` when it narrows it.
+fn narrow_to_outline(
+    fit: &mut Revolution,
+    points: &[Point3<f32>],
+    rays: &[OutlineRay],
+    (level, cameras): (&Rotation3<f32>, &[Point3<f32>]),
+    o: &RevolveOptions,
+) {
+    let rays: Vec<OutlineRay> = rays
+        .iter()
+        .map(|r| OutlineRay {
+            origin: level * r.origin,
+            dir: level * r.dir,
+            ..*r
+        })
+        .collect();
+    if let Some((c, delta)) = refit_to_outline(fit, points, &rays, cameras, o) {
+        fit.axis = [c.x, c.y];
+        for r in &mut fit.radii {
+            r.1 += delta;
+        }
+        fit.outline_offset_m = Some(delta);
+    }
 }
 
 /// Measures `fit`'s sampled surface (levelled `samples`, `back` to the world) against the views
@@ -510,6 +792,14 @@ fn check_seen_through(
 /// revolve stage checks a fit against ([`RevolveOptions::max_seen_through_fraction`]).
 pub type SeenThrough<'a> = &'a (dyn Fn(&[Point3<f32>]) -> f32 + Sync);
 
+/// What the revolve stage knows of the views: the cameras' centres, and when given, how much of
+/// a fit they see through and each instance's outline.
+pub type Views<'a> = (
+    &'a [Point3<f32>],
+    Option<SeenThrough<'a>>,
+    Option<Outline<'a>>,
+);
+
 /// Replaces the generated points of the instances `ids` that are upright solids of revolution
 /// (see the module docs). `observed` gives the fit; `generated` holds what the completers and the
 /// support stage made; `seen_through` (when given) measures a fit against the views. Returns the
@@ -519,7 +809,7 @@ pub fn revolve_instances(
     generated: &PointCloud,
     ground: &Ground,
     ids: &BTreeSet<u16>,
-    (cameras, seen_through): (&[Point3<f32>], Option<SeenThrough<'_>>),
+    (cameras, seen_through, outline): Views<'_>,
     o: &RevolveOptions,
 ) -> (PointCloud, Vec<RevolveRecord>) {
     let mut records = Vec::new();
@@ -534,7 +824,7 @@ pub fn revolve_instances(
     for &id in ids {
         let idx = own.get(&id).map(Vec::as_slice).unwrap_or(&[]);
         let pts: Vec<Point3<f32>> = idx.iter().map(|&i| ground.observed(i)).collect();
-        let fit = match fit_revolution(&pts, &cameras, o) {
+        let mut fit = match fit_revolution(&pts, &cameras, o) {
             Ok(f) => f,
             Err(why) => {
                 records.push(RevolveRecord {
@@ -545,6 +835,9 @@ pub fn revolve_instances(
                 continue;
             }
         };
+        if let Some(outline) = outline.filter(|_| o.min_outline_rays > 0) {
+            narrow_to_outline(&mut fit, &pts, &outline(id), (&level, &cameras), o);
+        }
         let gen_pts: Vec<Point3<f32>> = generated
             .positions
             .iter()
@@ -593,7 +886,6 @@ pub fn revolve_instances(
             Some(d[d.len() / 2].min(o.max_radius_m))
         };
         let (samples, rows) = sample_surface(&fit, bottom, top, &below, o);
-        let mut fit = fit;
         if let Some(refused) = check_seen_through(&mut fit, id, &samples, &back, seen_through, o) {
             records.push(refused);
             continue;
@@ -616,10 +908,10 @@ pub fn revolve_instances(
             reason: format!(
                 "{dropped} generated points replaced by {n} on a surface of revolution{} (radius \
                  {:.3} m, residual {:.1} mm, arc {:.0} deg, from z {bottom:.3}{})",
-                if fit.from_top {
-                    " fitted to the top's rim"
-                } else {
-                    ""
+                match (fit.from_top, fit.outline_offset_m) {
+                    (true, _) => " fitted to the top's rim".to_string(),
+                    (false, Some(d)) => format!(" narrowed {:.1} mm to its outline", -d * 1e3),
+                    (false, None) => String::new(),
                 },
                 fit.radii[fit.radii.len() / 2].1,
                 fit.residual_m * 1e3,
@@ -887,7 +1179,7 @@ mod tests {
             &generated,
             &ground(&observed, &PointCloud::default()),
             &[1].into(),
-            (&[], None),
+            (&[], None, None),
             &RevolveOptions::default(),
         );
         assert!(records[0].fit.is_some(), "{records:?}");
@@ -964,7 +1256,7 @@ mod tests {
                 &generated,
                 &ground(&observed, fill),
                 &[1].into(),
-                (&[], None),
+                (&[], None, None),
                 &RevolveOptions::default(),
             );
             assert!(records[0].fit.is_some(), "{records:?}");
@@ -1032,7 +1324,7 @@ mod tests {
             &generated,
             &ground(&observed, &PointCloud::default()),
             &ids,
-            (&[], None),
+            (&[], None, None),
             &RevolveOptions::default(),
         );
         assert!(records[0].fit.is_some(), "{records:?}");
@@ -1060,5 +1352,174 @@ mod tests {
             .unwrap()
             .iter()
             .all(|c| (0.0..=1.0).contains(c)));
+    }
+
+    /// A frame of an upright can (instance 1, radius `r`, 12 cm high, axis at the origin)
+    /// standing on a table (instance 2, z = 0), seen from 1.3 m up and 1.2 m away, ray-cast at
+    /// pixel centres; with `occluder`, a box (instance 3) hides the can's left side.
+    fn can_frame(r: f32, occluder: bool) -> deocc_io::scene::Frame {
+        use deocc_geometry::camera::{look_at, Camera, Intrinsics};
+        let intrinsics = Intrinsics::from_fov(640, 480, 40.0).unwrap();
+        let pose = look_at(
+            &Point3::new(0.0, -1.2, 1.3),
+            &Point3::new(0.0, 0.0, 0.06),
+            &Vector3::z(),
+        )
+        .unwrap();
+        let camera = Camera {
+            intrinsics,
+            world_from_camera: pose,
+        };
+        let (w, h) = (intrinsics.width(), intrinsics.height());
+        let eye = camera.center();
+        let mut depth = vec![0.0f32; (w * h) as usize];
+        let mut ids = vec![0u16; (w * h) as usize];
+        for v in 0..h {
+            for u in 0..w {
+                let d = (camera.unproject_pixel(u, v, 1.0) - eye).normalize();
+                let mut best = (f32::MAX, 0u16);
+                // The table.
+                if d.z < 0.0 {
+                    best = (-eye.z / d.z, 2);
+                }
+                // The can's side and top.
+                let (a, b, c) = (
+                    d.x * d.x + d.y * d.y,
+                    2.0 * (eye.x * d.x + eye.y * d.y),
+                    eye.x * eye.x + eye.y * eye.y - r * r,
+                );
+                let disc = b * b - 4.0 * a * c;
+                if disc >= 0.0 {
+                    let t = (-b - disc.sqrt()) / (2.0 * a);
+                    let z = eye.z + t * d.z;
+                    if (0.0..=0.12).contains(&z) && t < best.0 {
+                        best = (t, 1);
+                    }
+                }
+                let t = (0.12 - eye.z) / d.z;
+                let q = eye + d * t;
+                if q.x * q.x + q.y * q.y <= r * r && t < best.0 {
+                    best = (t, 1);
+                }
+                // A box in front, 5 cm wide and 40 cm high, covering x < -0.01.
+                if occluder {
+                    let t = (-0.1 - eye.y) / d.y;
+                    let q = eye + d * t;
+                    if (-0.06..=-0.01).contains(&q.x) && (0.0..=0.4).contains(&q.z) && t < best.0 {
+                        best = (t, 3);
+                    }
+                }
+                if best.1 != 0 {
+                    let i = (v * w + u) as usize;
+                    let p = eye + d * best.0;
+                    depth[i] = camera.world_from_camera.inverse_transform_point(&p).z;
+                    ids[i] = best.1;
+                }
+            }
+        }
+        deocc_io::scene::Frame {
+            name: "can".into(),
+            camera,
+            rgb: image::RgbImage::new(w, h),
+            depth: deocc_geometry::DepthMap::new(w, h, depth).unwrap(),
+            instances: Some(deocc_io::images::InstanceMap {
+                width: w,
+                height: h,
+                ids,
+            }),
+        }
+    }
+
+    /// The distance in the ground plane from the z axis to a ray's line (the radius of the
+    /// upright cylinder about the origin it is tangent to), and the ray's height there.
+    fn axis_distance(ray: &OutlineRay) -> (f32, f32) {
+        let (o, d) = (&ray.origin, &ray.dir);
+        let dxy = Vector2::new(d.x, d.y);
+        let t = dxy.normalize();
+        let lambda = -Vector2::new(o.x, o.y).dot(&dxy) / dxy.norm_squared();
+        ((t.x * o.y - t.y * o.x).abs(), o.z + lambda * d.z)
+    }
+
+    /// The distances of the rays that pass the can's side (not its top's or its base's rim).
+    fn side_distances(rays: &[OutlineRay]) -> Vec<f32> {
+        rays.iter()
+            .map(axis_distance)
+            .filter(|&(_, z)| (0.0..=0.12).contains(&z))
+            .map(|(d, _)| d)
+            .collect()
+    }
+
+    #[test]
+    fn outline_rays_graze_the_can_and_skip_an_occluders_edge() {
+        let r = 0.035;
+        let rays = outline_rays(&[can_frame(r, false)], 1);
+        assert!(rays.len() >= 40, "{} rays", rays.len());
+        let mut d = side_distances(&rays);
+        let median = percentile(&mut d, 0.5);
+        assert!(
+            (median - r).abs() < 0.0008,
+            "median distance {median} for radius {r}"
+        );
+
+        // Behind a box hiding its left side, the rays that remain are the right side's: none
+        // passes through the can along the box's edge.
+        let hidden = outline_rays(&[can_frame(r, true)], 1);
+        assert!(
+            !hidden.is_empty() && hidden.len() < rays.len() * 3 / 4,
+            "{}",
+            hidden.len()
+        );
+        for d in side_distances(&hidden) {
+            assert!(d > r - 0.0025, "a ray {d} from the axis (2 mm pixels)");
+        }
+        // No instance, no rays.
+        assert!(outline_rays(&[can_frame(r, false)], 7).is_empty());
+    }
+
+    #[test]
+    fn the_outline_narrows_a_can_fitted_too_wide_and_never_widens_one() {
+        let r = 0.035;
+        let frame = can_frame(r, false);
+        let cam = frame.camera.center();
+        let rays = outline_rays(std::slice::from_ref(&frame), 1);
+        let o = RevolveOptions {
+            min_outline_rays: 6,
+            ..Default::default()
+        };
+        // The front arc as a smoothed sensor leaves it: the flanks pulled towards the camera
+        // (up to 6 mm), a flatter arc, which fits a wider can behind.
+        let to_cam = Vector2::new(cam.x, cam.y).normalize();
+        let mut pts = Vec::new();
+        for p in side((0.0, 0.0), |_| r, 0.11, -160.0, -20.0) {
+            let radial = Vector2::new(p.x, p.y).normalize();
+            let off = 0.006 * (1.0 - radial.dot(&to_cam).max(0.0));
+            pts.push(Point3::new(
+                p.x + to_cam.x * off,
+                p.y + to_cam.y * off,
+                p.z - 0.7,
+            ));
+        }
+        let fit = fit_revolution(&pts, &[cam], &o).expect("a can");
+        let wide = fit.radius_at(0.05, o.slice_m);
+        assert!(wide > r + 0.002, "the biased fit is {wide}, not too wide");
+        let (c, delta) = refit_to_outline(&fit, &pts, &rays, &[cam], &o).expect("refitted");
+        assert!(delta < 0.0);
+        // To the outline plus half a pixel (1 mm here).
+        let refitted = wide + delta;
+        assert!(
+            refitted > r - 0.0005 && refitted < r + 0.0015,
+            "refitted {refitted} for {r}"
+        );
+        assert!(c.norm() < 0.002, "axis {c:?}");
+
+        // A fit narrower than the outline (a mug's handle widens it) is left as it is.
+        let narrow: Vec<Point3<f32>> = side((0.0, 0.0), |_| r - 0.004, 0.11, -160.0, -20.0)
+            .into_iter()
+            .map(|p| Point3::new(p.x, p.y, p.z - 0.7))
+            .collect();
+        let fit = fit_revolution(&narrow, &[cam], &o).expect("a narrow can");
+        assert!(refit_to_outline(&fit, &narrow, &rays, &[cam], &o).is_none());
+        // Too few rays: left as it is.
+        assert!(refit_to_outline(&fit, &pts, &rays[..3], &[cam], &o).is_none());
     }
 }

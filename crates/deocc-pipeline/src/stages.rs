@@ -157,9 +157,9 @@ pub const STAGES: &[Stage] = &[
     },
     Stage {
         name: "revolve",
-        what: "revolve: a completed object whose observed side is an upright solid of revolution (a can, a bottle) gets that surface, standing on the support below, instead of its completion, unless the views see through more than 6% of the fitted solid (a flask's broad face fits a circle far wider than the flask; posed, z up; `revolve_upright`)",
+        what: "revolve: a completed object whose observed side is an upright solid of revolution (a can, a bottle) gets that surface, standing on the support below, instead of its completion, unless the views see through more than 6% of the fitted solid (a flask's broad face fits a circle far wider than the flask); with `revolve_outline` (off) a fit wider than the object's outline in the views (its masks' edges against what lies behind) is narrowed to it (posed, z up; `revolve_upright`)",
         files: &["deocc-pipeline/src/revolve.rs"],
-        functions: &["revolve_instances", "fit_revolution"],
+        functions: &["revolve_instances", "fit_revolution", "outline_rays"],
         progress: None,
     },
     Stage {
