@@ -170,16 +170,15 @@ fn every_evaluation_runs_at_smoke_size() {
     for (k, row) in rows.iter().enumerate() {
         let s = &row[1][0];
         let cuboid = s["target_cuboid"].as_str().unwrap();
+        let revolve = s["target_revolve"].as_str().unwrap();
+        let revolved = s["target_revolved"].as_bool().unwrap();
         if k == 0 || k == rows.len() - 1 {
-            assert!(
-                !s["target_revolved"].as_bool().unwrap() && cuboid.is_empty(),
-                "{s}"
-            );
+            assert!(!revolved && cuboid.is_empty() && revolve.is_empty(), "{s}");
         } else {
-            assert!(
-                s["target_revolved"].as_bool().unwrap() || !cuboid.is_empty(),
-                "{s}"
-            );
+            assert!(revolved || !cuboid.is_empty(), "{s}");
+            // "fit" exactly when it was revolved, else why not.
+            assert_eq!(revolved, revolve == "fit", "{s}");
+            assert!(!revolve.is_empty(), "{s}");
         }
     }
     let depth = report(

@@ -67,6 +67,9 @@ pub struct SceneGrasps {
     /// the stage did not look at it: the revolve stage took it, or the observed and ground-truth
     /// clouds).
     pub target_cuboid: String,
+    /// What the revolve stage made of the target: "fit", or why it kept the completion (empty
+    /// for the observed and ground-truth clouds, or where the target was not completed).
+    pub target_revolve: String,
     /// Why the planner turned its candidates down (all zero when the target had too few points
     /// to plan on).
     pub plan_stats: PlanStats,
@@ -212,6 +215,7 @@ pub fn score_cloud(
                 .count(),
             target_revolved: false,
             target_cuboid: String::new(),
+            target_revolve: String::new(),
             plan_stats,
             seconds: t.elapsed().as_secs_f64(),
         },
@@ -343,6 +347,20 @@ pub fn grasp_benchmark(
                     i.instance_id == target && i.revolve.as_ref().is_some_and(|r| r.fit.is_some())
                 });
             if k > 0 {
+                row.target_revolve = out
+                    .report
+                    .instances
+                    .iter()
+                    .find(|i| i.instance_id == target)
+                    .and_then(|i| i.revolve.as_ref())
+                    .map(|r| {
+                        if r.fit.is_some() {
+                            "fit".to_string()
+                        } else {
+                            r.reason.clone()
+                        }
+                    })
+                    .unwrap_or_default();
                 row.target_cuboid = out
                     .report
                     .instances
