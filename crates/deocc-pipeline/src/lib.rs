@@ -510,6 +510,9 @@ fn shape_stages(
                 // (`deocc eval grasp --tuning`).
                 max_top_residual_m: (0.8 * opts.observed_voxel_m as f32).max(0.002),
                 min_outline_rays: REVOLVE_MIN_OUTLINE_RAYS,
+                min_arc_deg: opts.revolve_min_arc_deg,
+                max_rms_m: opts.revolve_max_residual_m,
+                max_rms_fraction: opts.revolve_max_residual_fraction,
                 ..Default::default()
             },
         );
