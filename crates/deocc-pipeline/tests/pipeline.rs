@@ -751,6 +751,33 @@ fn an_occluded_can_is_completed_on_its_axis() {
     }
 }
 
+/// The revolve stage's gates are the pipeline's options: pickup-v1's first can is revolved at
+/// the defaults and turned down for its arc when the options ask for the whole circle.
+#[test]
+fn the_revolve_gates_are_options() {
+    let preset = deocc_synth::dataset::pickup_v1();
+    let rendered = render_full_scene(&preset.config, preset.seeds[0]).unwrap();
+    let target = rendered.scene.target.unwrap();
+    let scene = rendered.scene_input();
+    let chain = CompleterChain::single(RulesCompleter::default());
+    let record = |opts: PipelineOptions| {
+        let out = deocc_pipeline::run(&scene, &chain, &opts, &Vec::new()).unwrap();
+        out.report
+            .instances
+            .iter()
+            .find(|i| i.instance_id == target)
+            .and_then(|i| i.revolve.clone())
+            .unwrap()
+    };
+    assert!(record(PipelineOptions::default()).fit.is_some());
+    let refused = record(PipelineOptions {
+        revolve_min_arc_deg: 359.0,
+        ..Default::default()
+    });
+    assert!(refused.fit.is_none(), "{refused:?}");
+    assert!(refused.reason.contains("arc"), "{}", refused.reason);
+}
+
 /// A can behind a box under the structured-light model (pickup-v2's tuning scene 9,450,027):
 /// the depth front end's smoothing flattens the arc on its flanks and the side's fit comes out
 /// several millimetres too wide, more than the gripper's margins; the outline in the view puts
