@@ -342,39 +342,29 @@ pub fn grasp_benchmark(
                 Some(&true_contacts),
                 &target_gt,
             )?;
-            row.target_revolved = k > 0
-                && out.report.instances.iter().any(|i| {
-                    i.instance_id == target && i.revolve.as_ref().is_some_and(|r| r.fit.is_some())
-                });
             if k > 0 {
-                row.target_revolve = out
+                // What a shape stage made of the target: "fit", or why not.
+                let said = |fit: bool, reason: &str| {
+                    if fit {
+                        "fit".to_string()
+                    } else {
+                        reason.to_string()
+                    }
+                };
+                let target_report = out
                     .report
                     .instances
                     .iter()
-                    .find(|i| i.instance_id == target)
+                    .find(|i| i.instance_id == target);
+                row.target_revolve = target_report
                     .and_then(|i| i.revolve.as_ref())
-                    .map(|r| {
-                        if r.fit.is_some() {
-                            "fit".to_string()
-                        } else {
-                            r.reason.clone()
-                        }
-                    })
+                    .map(|r| said(r.fit.is_some(), &r.reason))
                     .unwrap_or_default();
-                row.target_cuboid = out
-                    .report
-                    .instances
-                    .iter()
-                    .find(|i| i.instance_id == target)
+                row.target_cuboid = target_report
                     .and_then(|i| i.cuboid.as_ref())
-                    .map(|c| {
-                        if c.fit.is_some() {
-                            "fit".to_string()
-                        } else {
-                            c.reason.clone()
-                        }
-                    })
+                    .map(|c| said(c.fit.is_some(), &c.reason))
                     .unwrap_or_default();
+                row.target_revolved = row.target_revolve == "fit";
             }
             rows.push(row);
         }

@@ -660,13 +660,9 @@ fn the_depth_median_applies_to_crops_within_its_width_limit_only() {
     );
 }
 
-/// pickup-v1's first scene: a can behind a box. Its completion is replaced by a surface of
-/// revolution on the can's true axis and radius, which the rules completer alone misses by
-/// centimetres, and the box keeps its completion.
-#[test]
-fn an_occluded_can_is_completed_on_its_axis() {
-    let preset = deocc_synth::dataset::pickup_v1();
-    let rendered = render_full_scene(&preset.config, preset.seeds[0]).unwrap();
+/// The centre of a rendered scene's target, which must be a can, and its radius (its mesh's
+/// box).
+fn target_can(rendered: &deocc_synth::dataset::RenderedScene) -> (Point3<f32>, f32) {
     let target = rendered.scene.target.unwrap();
     let truth = rendered
         .scene
@@ -676,16 +672,24 @@ fn an_occluded_can_is_completed_on_its_axis() {
         .unwrap();
     assert_eq!(truth.category.name(), "can");
     let (lo, hi) = truth.mesh.vertices.iter().fold(
-        (
-            Point3::new(f32::MAX, f32::MAX, f32::MAX),
-            Point3::new(f32::MIN, f32::MIN, f32::MIN),
-        ),
+        (Point3::from([f32::MAX; 3]), Point3::from([f32::MIN; 3])),
         |(lo, hi), p| (lo.inf(p), hi.sup(p)),
     );
-    let (axis, radius) = (
+    (
         Point3::from((lo.coords + hi.coords) / 2.0),
-        (hi.x - lo.x) / 2.0,
-    );
+        (hi.x - lo.x + hi.y - lo.y) / 4.0,
+    )
+}
+
+/// pickup-v1's first scene: a can behind a box. Its completion is replaced by a surface of
+/// revolution on the can's true axis and radius, which the rules completer alone misses by
+/// centimetres, and the box keeps its completion.
+#[test]
+fn an_occluded_can_is_completed_on_its_axis() {
+    let preset = deocc_synth::dataset::pickup_v1();
+    let rendered = render_full_scene(&preset.config, preset.seeds[0]).unwrap();
+    let target = rendered.scene.target.unwrap();
+    let (axis, radius) = target_can(&rendered);
     let scene = rendered.scene_input();
     let chain = CompleterChain::single(RulesCompleter::default());
     let opts = PipelineOptions {
@@ -789,18 +793,7 @@ fn the_outline_narrows_a_can_the_sensor_widened() {
     preset.config.sensor_noise = false;
     let rendered = render_full_scene(&preset.config, 9_450_027).unwrap();
     let target = rendered.scene.target.unwrap();
-    let truth = rendered
-        .scene
-        .objects
-        .iter()
-        .find(|o| o.instance_id == target)
-        .unwrap();
-    assert_eq!(truth.category.name(), "can");
-    let (lo, hi) = truth.mesh.vertices.iter().fold(
-        (Point3::from([f32::MAX; 3]), Point3::from([f32::MIN; 3])),
-        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-    );
-    let radius = (hi.x - lo.x + hi.y - lo.y) / 4.0;
+    let (_, radius) = target_can(&rendered);
     let chain = CompleterChain::single(RulesCompleter::default());
     let fitted = |outline: bool| {
         let opts = PipelineOptions {
