@@ -167,9 +167,29 @@ pub fn table() -> Vec<(OptionHelp, serde_json::Value)> {
             for part in o.name.split('.') {
                 v = &v[part];
             }
-            (o.clone(), v.clone())
+            (o.clone(), as_f32(v.clone()))
         })
         .collect()
+}
+
+/// The options hold `f32`s; serialised they widen to `f64` (0.003 shows as
+/// 0.003000000026077032). Each float is shown as the shortest decimal that reads back as the
+/// same `f32`.
+fn as_f32(v: serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match v {
+        Value::Number(n) if n.is_f64() => {
+            let x = n.as_f64().unwrap_or_default() as f32;
+            format!("{x}")
+                .parse::<f64>()
+                .ok()
+                .and_then(serde_json::Number::from_f64)
+                .map_or(Value::Number(n), Value::Number)
+        }
+        Value::Array(a) => Value::Array(a.into_iter().map(as_f32).collect()),
+        Value::Object(m) => Value::Object(m.into_iter().map(|(k, v)| (k, as_f32(v))).collect()),
+        other => other,
+    }
 }
 
 /// The table as Markdown (docs/options.md).
@@ -217,6 +237,16 @@ mod tests {
             }
             _ => out.push(prefix.to_string()),
         }
+    }
+
+    #[test]
+    fn defaults_show_as_the_f32_they_are() {
+        let shown: std::collections::HashMap<_, _> =
+            table().into_iter().map(|(o, v)| (o.name, v)).collect();
+        assert_eq!(shown["revolve_max_residual_m"].to_string(), "0.003");
+        assert_eq!(shown["revolve_min_arc_deg"].to_string(), "40.0");
+        // Integers stay integers.
+        assert!(shown["steps"].is_u64(), "{}", shown["steps"]);
     }
 
     #[test]
