@@ -235,7 +235,8 @@ fn perception(a: PerceptionArgs) -> Result<()> {
             .min(deocc_synth::dataset::chairs_v1().seeds.len());
     let pb = crate::progress::bar(total as u64, "scenes");
     let sensor = a.sensor.kind_without_burst("deocc eval perception")?;
-    let mut clean = a.pipeline.options()?.depth_clean;
+    let opts = a.pipeline.options()?;
+    let mut clean = opts.depth_clean.clone();
     clean.enabled &= !a.no_depth_clean;
     let report = deocc_eval::perception::perception_benchmark(
         a.scenes,
@@ -243,6 +244,9 @@ fn perception(a: PerceptionArgs) -> Result<()> {
         sensor,
         &clean,
         &a.segmenter.segmenter()?,
+        &deocc_pipeline::occlusion::OcclusionOptions {
+            max_band_across_rows_px: opts.occlusion_max_band_across_rows_px,
+        },
         a.tuning,
         &mut || pb.inc(1),
     )?;

@@ -3,7 +3,7 @@
 
 use deocc_io::images::InstanceMap;
 use deocc_pipeline::matching::{match_masks, MaskCentroid, Threshold};
-use deocc_pipeline::occlusion::analyse_view;
+use deocc_pipeline::occlusion::analyse_view_with;
 use deocc_synth::dataset::RenderedScene;
 use deocc_synth::shapes::Category;
 use serde::Serialize;
@@ -35,7 +35,11 @@ impl DetectionCounts {
 
 /// Occlusion detection with ground-truth masks in every view of a scene (room structure and
 /// masks cut by the image border excluded; masks under 50 px excluded).
-pub fn occlusion_counts(r: &RenderedScene, counts: &mut DetectionCounts) {
+pub fn occlusion_counts(
+    r: &RenderedScene,
+    o: &deocc_pipeline::occlusion::OcclusionOptions,
+    counts: &mut DetectionCounts,
+) {
     let structure: Vec<u16> = r.scene.structure_ids();
     for view in &r.views {
         let map = InstanceMap {
@@ -43,7 +47,7 @@ pub fn occlusion_counts(r: &RenderedScene, counts: &mut DetectionCounts) {
             height: view.frame.height,
             ids: view.frame.instance.clone(),
         };
-        let found = analyse_view(&map, &view.depth);
+        let found = analyse_view_with(&map, &view.depth, o);
         for vis in &view.visibility {
             if structure.contains(&vis.instance_id) || vis.truncated || vis.visible_px < 50 {
                 continue;
@@ -137,6 +141,7 @@ pub fn grouping(r: &RenderedScene, threshold: Threshold) -> (f64, Option<f64>, f
 pub fn segmenter_figures(
     r: &RenderedScene,
     seg: &deocc_pipeline::segment::ConvexitySegmenter,
+    o: &deocc_pipeline::occlusion::OcclusionOptions,
     counts: &mut DetectionCounts,
     ious: &mut SegmenterIous,
 ) {
@@ -162,7 +167,7 @@ pub fn segmenter_figures(
             ious.add_losses(&l);
         }
         // Occlusion on predicted masks, judged by the majority ground-truth instance of each.
-        let found = analyse_view(&pred, &view.depth);
+        let found = analyse_view_with(&pred, &view.depth, o);
         let mut majority: std::collections::HashMap<u16, std::collections::HashMap<u16, usize>> =
             Default::default();
         for (&p, &t) in pred.ids.iter().zip(&truth.ids) {
@@ -330,7 +335,7 @@ fn failure_case(
     for &seed in &preset.seeds[..n] {
         let mut r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         crate::clean_views(&mut r, clean);
-        segmenter_figures(&r, segmenter, &mut counts, &mut ious);
+        segmenter_figures(&r, segmenter, &Default::default(), &mut counts, &mut ious);
         if let (Some(a), Some(f)) = (
             grouping(&r, Threshold::Adaptive).1,
             grouping(&r, Threshold::Fixed(0.05)).1,
@@ -365,6 +370,7 @@ pub fn perception_benchmark(
     sensor: deocc_synth::sensor::SensorKind,
     clean: &deocc_pipeline::depth_clean::DepthCleanOptions,
     segmenter: &deocc_pipeline::segment::ConvexitySegmenter,
+    occlusion: &deocc_pipeline::occlusion::OcclusionOptions,
     tuning: bool,
     tick: &mut dyn FnMut(),
 ) -> Result<PerceptionReport, crate::EvalError> {
@@ -393,9 +399,9 @@ pub fn perception_benchmark(
     for &seed in &preset.seeds[..n] {
         let mut r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         crate::clean_views(&mut r, clean);
-        occlusion_counts(&r, &mut counts);
+        occlusion_counts(&r, occlusion, &mut counts);
         let t0 = std::time::Instant::now();
-        segmenter_figures(&r, segmenter, &mut seg_counts, &mut seg_ious);
+        segmenter_figures(&r, segmenter, occlusion, &mut seg_counts, &mut seg_ious);
         seg_time += t0.elapsed().as_secs_f64();
         seg_views += r.views.len();
         for (k, (_, t)) in thresholds.iter().enumerate() {

@@ -19,7 +19,11 @@ fn config() -> SceneConfig {
 fn occlusion_detection_agrees_with_ground_truth() {
     let mut c = DetectionCounts::default();
     for seed in 0..4 {
-        occlusion_counts(&render_full_scene(&config(), 100 + seed).unwrap(), &mut c);
+        occlusion_counts(
+            &render_full_scene(&config(), 100 + seed).unwrap(),
+            &Default::default(),
+            &mut c,
+        );
     }
     assert!(
         c.true_positive > 20,
@@ -122,6 +126,7 @@ fn perception_holds_under_a_structured_light_sensor() {
             0,
             sensor,
             clean,
+            &Default::default(),
             &Default::default(),
             false,
             &mut || {},

@@ -59,7 +59,7 @@ pub use error::PipelineError;
 pub use options::PipelineOptions;
 pub use report::{CompletionRecord, InstanceReport, RunReport, StageTimings};
 
-use crate::occlusion::{analyse_view, MaskOcclusion};
+use crate::occlusion::{analyse_view_with, MaskOcclusion, OcclusionOptions};
 
 /// What a run produces.
 pub struct PipelineOutput {
@@ -288,13 +288,16 @@ type Targets = (
 /// bounding planes (the floor, the walls, and the pieces a segmenter cut them into) are not
 /// completed: the plane fill is their completion.
 fn occlusion_and_targets(scene: &SceneInput, opts: &PipelineOptions) -> Targets {
+    let oopts = OcclusionOptions {
+        max_band_across_rows_px: opts.occlusion_max_band_across_rows_px,
+    };
     let occlusion: Vec<Vec<MaskOcclusion>> = scene
         .frames
         .iter()
         .map(|f| {
             f.instances
                 .as_ref()
-                .map(|m| analyse_view(m, &f.depth))
+                .map(|m| analyse_view_with(m, &f.depth, &oopts))
                 .unwrap_or_default()
         })
         .collect();

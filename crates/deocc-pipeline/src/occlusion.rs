@@ -42,10 +42,36 @@ pub fn max_band_px(width: usize) -> usize {
     (width / 40).max(4)
 }
 
-/// Occlusion analysis of one view.
+/// Settings of the occlusion stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct OcclusionOptions {
+    /// The widest band without depth crossed across the image's rows (up or down), pixels; 0 =
+    /// as wide as along them ([`max_band_px`]). An emitter's shadow lies along its baseline, the
+    /// camera's x axis, so a shadow band is crossed along a row; a band across the rows is a
+    /// surface the sensor did not measure (a bowl's lower belly at a grazing angle), and below
+    /// an object standing on a table the table beyond it lies nearer by the band's height times
+    /// its slope in the image, which reads as the table hiding the object (docs/decisions.md,
+    /// "Occlusion across bands below an object").
+    pub max_band_across_rows_px: usize,
+}
+
+/// Occlusion analysis of one view, with the default [`OcclusionOptions`].
 pub fn analyse_view(instances: &InstanceMap, depth: &DepthMap) -> Vec<MaskOcclusion> {
+    analyse_view_with(instances, depth, &OcclusionOptions::default())
+}
+
+/// Occlusion analysis of one view.
+pub fn analyse_view_with(
+    instances: &InstanceMap,
+    depth: &DepthMap,
+    o: &OcclusionOptions,
+) -> Vec<MaskOcclusion> {
     let (w, h) = (instances.width as usize, instances.height as usize);
     let band = max_band_px(w);
+    let band_across_rows = match o.max_band_across_rows_px {
+        0 => band,
+        n => n.min(band),
+    };
     let ids = &instances.ids;
     let d = depth.data();
     // depth(a) - depth(b) across every boundary pixel pair (a, b), keyed by (a, b).
@@ -76,7 +102,8 @@ pub fn analyse_view(instances: &InstanceMap, depth: &DepthMap) -> Vec<MaskOcclus
                 // (ground truth, or a segmenter that labels it), the farther object's mask holds
                 // the band, and its depth pixels meet the band inside their own mask.
                 if d[i] > 0.0 && d[j] <= 0.0 && du >= 0 && dv >= 0 {
-                    if let Some((c, k)) = across_band(ids, d, w, h, (u, v), (du, dv), a, band) {
+                    let reach = if dv != 0 { band_across_rows } else { band };
+                    if let Some((c, k)) = across_band(ids, d, w, h, (u, v), (du, dv), a, reach) {
                         steps.entry((a, c)).or_default().push(d[i] - d[k]);
                         steps.entry((c, a)).or_default().push(d[k] - d[i]);
                     }
@@ -277,5 +304,52 @@ mod tests {
         // A band through a third mask is no boundary between these two.
         let (map, depth) = pair(3, 7);
         assert!(occluded(&analyse_view(&map, &depth), 2).is_empty());
+    }
+
+    /// A near mask above a far one, `band` rows without depth between them.
+    fn stacked(band: usize) -> (InstanceMap, DepthMap) {
+        let (w, h) = (400usize, 200usize);
+        let mut ids = vec![0u16; w * h];
+        let mut d = vec![0f32; w * h];
+        for v in 10..190 {
+            for u in 10..390 {
+                let i = v * w + u;
+                if v < 60 {
+                    (ids[i], d[i]) = (1, 1.0);
+                } else if v >= 60 + band {
+                    (ids[i], d[i]) = (2, 2.0);
+                }
+            }
+        }
+        (
+            InstanceMap {
+                width: w as u32,
+                height: h as u32,
+                ids,
+            },
+            DepthMap::new(w as u32, h as u32, d).unwrap(),
+        )
+    }
+
+    /// By default a band across the rows is crossed as far as one along them; with
+    /// `max_band_across_rows_px` only that far, while a band along a row keeps its reach.
+    #[test]
+    fn a_band_across_the_rows_is_crossed_only_as_far_as_the_option_says() {
+        let narrow = OcclusionOptions {
+            max_band_across_rows_px: 6,
+        };
+        let (map, depth) = stacked(8);
+        assert_eq!(occluded(&analyse_view(&map, &depth), 2), vec![1]);
+        assert!(occluded(&analyse_view_with(&map, &depth, &narrow), 2).is_empty());
+        let (map, depth) = stacked(5);
+        assert_eq!(
+            occluded(&analyse_view_with(&map, &depth, &narrow), 2),
+            vec![1]
+        );
+        let (map, depth) = pair(8, 0);
+        assert_eq!(
+            occluded(&analyse_view_with(&map, &depth, &narrow), 2),
+            vec![1]
+        );
     }
 }

@@ -90,6 +90,7 @@ pub const OPTIONS: &[OptionHelp] = &[
     row!("batch", i(1, 1024), "crops per completer call"),
     row!("seed", Range::Any, "seed of a generative completer's noise"),
     row!("complete_unoccluded", Range::Bool, "also complete objects nothing hides (their far side is hidden in every view)"),
+    row!("occlusion_max_band_across_rows_px", i(0, 64), "the occlusion stage crosses a band without depth across the image's rows at most this far, pixels (0 = as far as along them)"),
     row!("skip_plane_pieces", Range::Bool, "leave floor and wall pieces to the plane fill instead of a completer"),
     row!("plane_piece_min_fraction", Range::Float { min: 0.0, max: 1.0, min_open: true }, "share of an instance's points in a bounding plane that makes it a plane piece"),
     row!("extend_to_support", Range::Bool, "extend hidden bottoms down to the surface below (posed scenes)"),

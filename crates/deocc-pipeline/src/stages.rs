@@ -110,7 +110,7 @@ pub const STAGES: &[Stage] = &[
         name: "occlusion",
         what: "occlusion per view (the depth order judged across a band without depth between two masks: an emitter's shadow, wherever the band begins, in no mask or inside the farther one's), instances to complete",
         files: &["deocc-pipeline/src/occlusion.rs"],
-        functions: &["analyse_view", "instances_to_complete"],
+        functions: &["analyse_view_with", "instances_to_complete"],
         progress: Some(0.47),
     },
     Stage {
