@@ -322,6 +322,7 @@ fn failure_case(
     sensor: deocc_synth::sensor::SensorKind,
     clean: &deocc_pipeline::depth_clean::DepthCleanOptions,
     segmenter: &deocc_pipeline::segment::ConvexitySegmenter,
+    occlusion: &deocc_pipeline::occlusion::OcclusionOptions,
     tick: &mut dyn FnMut(),
 ) -> Result<FailureCaseFigures, crate::EvalError> {
     use deocc_pipeline::matching::Threshold;
@@ -335,7 +336,7 @@ fn failure_case(
     for &seed in &preset.seeds[..n] {
         let mut r = deocc_synth::dataset::render_full_scene(&preset.config, seed)?;
         crate::clean_views(&mut r, clean);
-        segmenter_figures(&r, segmenter, &Default::default(), &mut counts, &mut ious);
+        segmenter_figures(&r, segmenter, occlusion, &mut counts, &mut ious);
         if let (Some(a), Some(f)) = (
             grouping(&r, Threshold::Adaptive).1,
             grouping(&r, Threshold::Fixed(0.05)).1,
@@ -447,7 +448,7 @@ pub fn perception_benchmark(
         segmenter_miou_by_category: seg_ious.per_category(),
         segmenter_losses: seg_ious.mean_losses(),
         hollow_back_chairs: (failure_scenes > 0)
-            .then(|| failure_case(failure_scenes, sensor, clean, segmenter, tick))
+            .then(|| failure_case(failure_scenes, sensor, clean, segmenter, occlusion, tick))
             .transpose()?,
     };
     Ok(report)

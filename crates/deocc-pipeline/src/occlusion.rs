@@ -233,15 +233,31 @@ mod tests {
     /// A near mask (1 m, left) and a far one (2 m, right) separated by `band` pixels without depth
     /// whose ids are `band_id`.
     fn pair(band: usize, band_id: u16) -> (InstanceMap, DepthMap) {
-        let (w, h) = (400usize, 20usize);
+        two_masks((400, 20), band, band_id, |u, _| u)
+    }
+
+    /// A near mask and a far one in a `w` x `h` image, along the coordinate `along(u, v)`
+    /// picks: from 10 the near one up to 60, then `band` pixels without depth (id `band_id`),
+    /// then the far one up to 10 short of the image's end.
+    fn two_masks(
+        (w, h): (usize, usize),
+        band: usize,
+        band_id: u16,
+        along: fn(usize, usize) -> usize,
+    ) -> (InstanceMap, DepthMap) {
         let mut ids = vec![0u16; w * h];
         let mut d = vec![0f32; w * h];
+        let end = along(w, h) - 10;
         for v in 0..h {
-            for u in 10..390 {
+            for u in 0..w {
                 let i = v * w + u;
-                if u < 60 {
+                let x = along(u, v);
+                if !(10..end).contains(&x) {
+                    continue;
+                }
+                if x < 60 {
                     (ids[i], d[i]) = (1, 1.0);
-                } else if u < 60 + band {
+                } else if x < 60 + band {
                     ids[i] = band_id;
                 } else {
                     (ids[i], d[i]) = (2, 2.0);
@@ -308,27 +324,7 @@ mod tests {
 
     /// A near mask above a far one, `band` rows without depth between them.
     fn stacked(band: usize) -> (InstanceMap, DepthMap) {
-        let (w, h) = (400usize, 200usize);
-        let mut ids = vec![0u16; w * h];
-        let mut d = vec![0f32; w * h];
-        for v in 10..190 {
-            for u in 10..390 {
-                let i = v * w + u;
-                if v < 60 {
-                    (ids[i], d[i]) = (1, 1.0);
-                } else if v >= 60 + band {
-                    (ids[i], d[i]) = (2, 2.0);
-                }
-            }
-        }
-        (
-            InstanceMap {
-                width: w as u32,
-                height: h as u32,
-                ids,
-            },
-            DepthMap::new(w as u32, h as u32, d).unwrap(),
-        )
+        two_masks((400, 200), band, 0, |_, v| v)
     }
 
     /// By default a band across the rows is crossed as far as one along them; with

@@ -175,6 +175,8 @@ pub const CARVE_OUTSIDE_BOUNDING_PLANES_M: f32 = 0.02;
 
 impl Default for PipelineOptions {
     fn default() -> Self {
+        // The revolve stage's gates are its own defaults (one place to change them).
+        let revolve = crate::revolve::RevolveOptions::default();
         Self {
             steps: 4,
             rho: 0.5,
@@ -192,9 +194,9 @@ impl Default for PipelineOptions {
             extend_to_support: true,
             revolve_upright: true,
             revolve_outline: false,
-            revolve_min_arc_deg: 40.0,
-            revolve_max_residual_m: 0.003,
-            revolve_max_residual_fraction: 0.08,
+            revolve_min_arc_deg: revolve.min_arc_deg,
+            revolve_max_residual_m: revolve.max_rms_m,
+            revolve_max_residual_fraction: revolve.max_rms_fraction,
             cuboid_upright: true,
             up: [0.0, 0.0, 1.0],
             complete_planes: true,
